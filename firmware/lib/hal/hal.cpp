@@ -1,0 +1,2 @@
+// Out-of-line anchor for the HAL interfaces' vtables (one translation unit owns them).
+#include "hal.hpp"

@@ -1,0 +1,26 @@
+"""Shared fixtures: where the C++ build lives (the Makefile builds it before pytest runs)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="session")
+def build_dir() -> Path:
+    path = Path(os.environ.get("ICGT_BUILD_DIR", ROOT / "build" / "host"))
+    if not path.is_absolute():
+        path = ROOT / path
+    return path
+
+
+@pytest.fixture(scope="session")
+def cpp_vector_runner(build_dir: Path) -> Path:
+    runner = build_dir / "firmware" / "icgt-vector-runner"
+    if not runner.exists():
+        pytest.fail(f"{runner} is missing: build the C++ side first (make build, or make test)")
+    return runner

@@ -215,6 +215,7 @@ def validate(table: Table) -> None:
 # ---------------------------------------------------------------------------------
 # C++
 
+
 def _cpp_const(name: str) -> str:
     return "k" + "".join(p.capitalize() for p in name.split("_"))
 
@@ -370,6 +371,7 @@ def render_cpp(t: Table) -> str:
 # ---------------------------------------------------------------------------------
 # Python
 
+
 def _py_default(f: Field) -> str:
     if f.kind != "scalar":
         return '""'
@@ -440,9 +442,14 @@ def render_py(t: Table) -> str:
     w("        raise NotImplementedError")
     w("")
     w("    @classmethod")
+    w("    def from_buffer(cls, buf: bytes, offset: int, end: int) -> Message:")
+    w('        """Build from the body at buf[offset:end], whose length the caller has checked."""')
+    w("        raise NotImplementedError")
+    w("")
+    w("    @classmethod")
     w("    def from_body(cls, body: bytes) -> Message:")
     w('        """Build from a body whose length the caller has checked."""')
-    w("        raise NotImplementedError")
+    w("        return cls.from_buffer(body, 0, len(body))")
     w("")
     for m in t.messages:
         sname = f"_S_{m.name}"
@@ -481,22 +488,19 @@ def render_py(t: Table) -> str:
         else:
             w(f"        return {packed}")
         w("")
-        # from_body()
+        # from_buffer()
         w("    @classmethod")
-        w(f"    def from_body(cls, body: bytes) -> {m.class_name}:")
+        w(f"    def from_buffer(cls, buf: bytes, offset: int, end: int) -> {m.class_name}:")
         has_char = any(f.kind == "char" for f in m.fields)
         if not has_char and not m.tail:
-            w(f"        return cls(*{sname}.unpack(body))")
+            w(f"        return cls(*{sname}.unpack_from(buf, offset))")
         else:
-            if m.tail:
-                w(f"        v = list({sname}.unpack_from(body))")
-            else:
-                w(f"        v = list({sname}.unpack(body))")
+            w(f"        v = list({sname}.unpack_from(buf, offset))")
             for i, f in enumerate(m.fixed_fields):
                 if f.kind == "char":
                     w(f'        v[{i}] = v[{i}].split(b"\\0", 1)[0].decode("utf-8", "replace")')
             if m.tail:
-                w(f'        v.append(body[{m.fixed_size}:].decode("utf-8", "replace"))')
+                w(f'        v.append(buf[offset + {m.fixed_size} : end].decode("utf-8", "replace"))')
             w("        return cls(*v)")
         w("")
     w("")

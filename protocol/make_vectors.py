@@ -40,8 +40,15 @@ INT_RANGES = {
 }
 
 
-def raw_frame(msg_type: int, body: bytes, seq: int, *, version: int = m.PROTOCOL_VERSION, flags: int = 0,
-              corrupt_crc: bool = False) -> bytes:
+def raw_frame(
+    msg_type: int,
+    body: bytes,
+    seq: int,
+    *,
+    version: int = m.PROTOCOL_VERSION,
+    flags: int = 0,
+    corrupt_crc: bool = False,
+) -> bytes:
     """A wire frame built straight from the spec (not through the codec under test)."""
     raw = struct.pack("<BBBBI", version, msg_type, flags, 0, seq) + body
     crc = zlib.crc32(raw) ^ (0x00000100 if corrupt_crc else 0)
@@ -123,31 +130,93 @@ def typical_cases() -> list[Case]:
     cases = []
     t0 = 1_234_567_890
     examples: list[m.Message] = [
-        m.Hello(protocol_version=1, table_hash=m.TABLE_HASH, t_us=812, firmware_version="0.1.0+g1a2b3c",
-                board=m.Board.TEENSY41, serial_number=8_675_309, clock_source=m.ClockSource.RTC,
-                rtc_utc_us_at_boot=1_795_000_000_000_000, lidar_model=m.LidarModel.V3HP),
-        m.Status(t_us=t0, capture_state=m.CaptureState.CAPTURING, sensor_health=0x1F, triggers_fired=120,
-                 exposures_confirmed=119, feedback_missing=1, messages_sent=70_000, dropped_imu=3,
-                 i2c_errors=2, imu_reinits=1, rx_frames_ok=40, rx_frames_rejected=1, loop_max_us=312),
-        m.Exposure(image_index=17, camera_id=0, flags=0, trigger_t_us=t0, feedback_start_t_us=t0 + 48_211,
-                   feedback_end_t_us=t0 + 49_211, duration_us=1000),
-        m.Imu(read_start_t_us=t0, read_end_t_us=t0 + 1210, quat_w=0.70710678, quat_x=0.0, quat_y=-0.70710678,
-              quat_z=0.0, gyro_x_rad_s=0.0123, gyro_y_rad_s=-0.5, gyro_z_rad_s=1e-3, accel_x_m_s2=0.12,
-              accel_y_m_s2=-0.03, accel_z_m_s2=9.81, lin_accel_x_m_s2=0.01, lin_accel_y_m_s2=0.0,
-              lin_accel_z_m_s2=-0.02, calib_stat=0xFF, flags=m.ImuFlags.FUSION_RUNNING),
-        m.Range(acq_start_t_us=t0, read_t_us=t0 + 1900, distance_cm=512, signal_strength=87,
-                flags=m.RangeFlags.VALID | m.RangeFlags.BIAS_CORRECTED),
+        m.Hello(
+            protocol_version=1,
+            table_hash=m.TABLE_HASH,
+            t_us=812,
+            firmware_version="0.1.0+g1a2b3c",
+            board=m.Board.TEENSY41,
+            serial_number=8_675_309,
+            clock_source=m.ClockSource.RTC,
+            rtc_utc_us_at_boot=1_795_000_000_000_000,
+            lidar_model=m.LidarModel.V3HP,
+        ),
+        m.Status(
+            t_us=t0,
+            capture_state=m.CaptureState.CAPTURING,
+            sensor_health=0x1F,
+            triggers_fired=120,
+            exposures_confirmed=119,
+            feedback_missing=1,
+            messages_sent=70_000,
+            dropped_imu=3,
+            i2c_errors=2,
+            imu_reinits=1,
+            rx_frames_ok=40,
+            rx_frames_rejected=1,
+            loop_max_us=312,
+        ),
+        m.Exposure(
+            image_index=17,
+            camera_id=0,
+            flags=0,
+            trigger_t_us=t0,
+            feedback_start_t_us=t0 + 48_211,
+            feedback_end_t_us=t0 + 49_211,
+            duration_us=1000,
+        ),
+        m.Imu(
+            read_start_t_us=t0,
+            read_end_t_us=t0 + 1210,
+            quat_w=0.70710678,
+            quat_x=0.0,
+            quat_y=-0.70710678,
+            quat_z=0.0,
+            gyro_x_rad_s=0.0123,
+            gyro_y_rad_s=-0.5,
+            gyro_z_rad_s=1e-3,
+            accel_x_m_s2=0.12,
+            accel_y_m_s2=-0.03,
+            accel_z_m_s2=9.81,
+            lin_accel_x_m_s2=0.01,
+            lin_accel_y_m_s2=0.0,
+            lin_accel_z_m_s2=-0.02,
+            calib_stat=0xFF,
+            flags=m.ImuFlags.FUSION_RUNNING,
+        ),
+        m.Range(
+            acq_start_t_us=t0,
+            read_t_us=t0 + 1900,
+            distance_cm=512,
+            signal_strength=87,
+            flags=m.RangeFlags.VALID | m.RangeFlags.BIAS_CORRECTED,
+        ),
         m.Pps(t_us=t0, pps_count=42),
-        m.TimeSyncReply(host_t_ns=1_795_000_000_123_456_789, request_seq=5, device_rx_t_us=t0,
-                        device_tx_t_us=t0 + 37),
+        m.TimeSyncReply(host_t_ns=1_795_000_000_123_456_789, request_seq=5, device_rx_t_us=t0, device_tx_t_us=t0 + 37),
         m.Ack(request_seq=9, request_type=m.MsgId.START_CAPTURE, error_code=m.ErrorCode.BUSY_CAPTURING, detail=0),
         m.Log(t_us=t0, level=m.LogLevel.WARNING, text='BNO055 NACK at 0x28, retry in 200 ms "\\ \t'),
-        m.StartCapture(mode=m.CaptureMode.FOCUS_BURST, camera_id=0, interval_us=200_000, count=0,
-                       focus_lead_us=500_000, burst_us=2_000_000, shutter_pulse_us=20_000),
+        m.StartCapture(
+            mode=m.CaptureMode.FOCUS_BURST,
+            camera_id=0,
+            interval_us=200_000,
+            count=0,
+            focus_lead_us=500_000,
+            burst_us=2_000_000,
+            shutter_pulse_us=20_000,
+        ),
         m.StopCapture(camera_id=0),
-        m.Configure(imu_rate_hz=100, imu_mode=0x0C, imu_ext_crystal=1, range_rate_hz=500,
-                    lidar_model=m.LidarModel.V3, lidar_preset=0, lidar_bias_every=100, polarity=0x07,
-                    feedback_enabled=1, feedback_timeout_us=250_000),
+        m.Configure(
+            imu_rate_hz=100,
+            imu_mode=0x0C,
+            imu_ext_crystal=1,
+            range_rate_hz=500,
+            lidar_model=m.LidarModel.V3,
+            lidar_preset=0,
+            lidar_bias_every=100,
+            polarity=0x07,
+            feedback_enabled=1,
+            feedback_timeout_us=250_000,
+        ),
         m.TimeSync(host_t_ns=1_795_000_000_123_456_789),
         m.SetTime(utc_us=1_795_000_000_250_000),
         m.Ping(nonce=0xDEADBEEF),
@@ -168,8 +237,9 @@ def typical_cases() -> list[Case]:
     longest = "ok " + "Ω" * 98 + "!"  # 3 + 196 + 1 = 200 bytes of UTF-8
     assert len(longest.encode()) == 200
     cases.append(Case("log_max_length_text", True).add(m.Log(t_us=1, level=m.LogLevel.ERROR, text=longest), seq=3))
-    cases.append(Case("log_control_characters", True).add(
-        m.Log(t_us=2, level=1, text="a\x01b\x1fc\x7fd\ne\"f\\"), seq=4))
+    cases.append(
+        Case("log_control_characters", True).add(m.Log(t_us=2, level=1, text='a\x01b\x1fc\x7fd\ne"f\\'), seq=4)
+    )
     cases.append(Case("hello_full_length_version", True).add(m.Hello(firmware_version="1234567890abcdef"), seq=0))
     return cases
 
@@ -182,16 +252,29 @@ def stream_cases() -> list[Case]:
     seq = 0
     for k in range(40):
         t = 1_000_000 + k * 2000
-        mixed.add(m.Range(acq_start_t_us=t, read_t_us=t + 1500, distance_cm=400 + k, signal_strength=90,
-                          flags=m.RangeFlags.VALID), seq)
+        mixed.add(
+            m.Range(
+                acq_start_t_us=t, read_t_us=t + 1500, distance_cm=400 + k, signal_strength=90, flags=m.RangeFlags.VALID
+            ),
+            seq,
+        )
         seq += 1
         if k % 5 == 0:
-            mixed.add(m.Imu(read_start_t_us=t, read_end_t_us=t + 900, quat_w=1.0, accel_z_m_s2=9.80665,
-                            calib_stat=0x3F), seq)
+            mixed.add(
+                m.Imu(read_start_t_us=t, read_end_t_us=t + 900, quat_w=1.0, accel_z_m_s2=9.80665, calib_stat=0x3F), seq
+            )
             seq += 1
         if k % 20 == 0:
-            mixed.add(m.Exposure(image_index=1 + k // 20, trigger_t_us=t, feedback_start_t_us=t + 40_000,
-                                 feedback_end_t_us=t + 41_000, duration_us=1000), seq)
+            mixed.add(
+                m.Exposure(
+                    image_index=1 + k // 20,
+                    trigger_t_us=t,
+                    feedback_start_t_us=t + 40_000,
+                    feedback_end_t_us=t + 41_000,
+                    duration_us=1000,
+                ),
+                seq,
+            )
             seq += 1
     cases.append(mixed)
 
@@ -224,13 +307,12 @@ def stream_cases() -> list[Case]:
         return case.add(m.Ping(nonce=0x1234), seq)
 
     ping_body = m.Ping(nonce=7).body()
-    cases.append(then_ping(Case("bad_crc", False).junk(raw_frame(m.Ping.ID, ping_body, 0, corrupt_crc=True),
-                                                       crc_error=1), 1))
-    cases.append(then_ping(Case("truncated_frame", False).junk(cobs.encode(b"\x01\x45\x00") + b"\x00",
-                                                               truncated=1)))
+    cases.append(
+        then_ping(Case("bad_crc", False).junk(raw_frame(m.Ping.ID, ping_body, 0, corrupt_crc=True), crc_error=1), 1)
+    )
+    cases.append(then_ping(Case("truncated_frame", False).junk(cobs.encode(b"\x01\x45\x00") + b"\x00", truncated=1)))
     cases.append(then_ping(Case("oversized_frame", False).junk(bytes([0x42]) * 300 + b"\x00", oversized=1)))
-    cases.append(then_ping(Case("oversized_by_one_byte", False).junk(bytes([0xFF]) * 259 + b"\x00",
-                                                                     oversized=1)))
+    cases.append(then_ping(Case("oversized_by_one_byte", False).junk(bytes([0xFF]) * 259 + b"\x00", oversized=1)))
     cases.append(then_ping(Case("cobs_code_past_end", False).junk(b"\x09\x01\x02\x00", cobs_error=1)))
     junk = bytes(rng.randrange(1, 256) for _ in range(57))
     cases.append(then_ping(Case("junk_before_first_frame", False).junk(junk + b"\x00", **_classify_junk(junk))))
@@ -240,15 +322,19 @@ def stream_cases() -> list[Case]:
     cases.append(then_ping(between, 1))
     cases.append(then_ping(Case("unknown_type", False).junk(raw_frame(0x3E, b"", 0), unknown_type=1), 1))
     cases.append(then_ping(Case("type_zero", False).junk(raw_frame(0x00, b"", 0), unknown_type=1), 1))
-    cases.append(then_ping(Case("wrong_version", False).junk(raw_frame(m.Ping.ID, ping_body, 0, version=2),
-                                                             wrong_version=1), 1))
-    cases.append(then_ping(Case("body_too_long", False).junk(raw_frame(m.Ping.ID, ping_body + b"\x01", 0),
-                                                             bad_length=1), 1))
-    cases.append(then_ping(Case("body_too_short", False).junk(raw_frame(m.Exposure.ID, b"\x01" * 10, 0),
-                                                              bad_length=1), 1))
+    cases.append(
+        then_ping(Case("wrong_version", False).junk(raw_frame(m.Ping.ID, ping_body, 0, version=2), wrong_version=1), 1)
+    )
+    cases.append(
+        then_ping(Case("body_too_long", False).junk(raw_frame(m.Ping.ID, ping_body + b"\x01", 0), bad_length=1), 1)
+    )
+    cases.append(
+        then_ping(Case("body_too_short", False).junk(raw_frame(m.Exposure.ID, b"\x01" * 10, 0), bad_length=1), 1)
+    )
     too_long_log = m.Log(t_us=1, level=1).body() + b"x" * 201
-    cases.append(then_ping(Case("log_text_too_long", False).junk(raw_frame(m.Log.ID, too_long_log, 0),
-                                                                 bad_length=1), 1))
+    cases.append(
+        then_ping(Case("log_text_too_long", False).junk(raw_frame(m.Log.ID, too_long_log, 0), bad_length=1), 1)
+    )
     unterminated = then_ping(Case("unterminated_tail_is_pending", False))
     tail = raw_frame(m.Ping.ID, ping_body, 1)[:-1]
     unterminated.junk(tail, pending_bytes=len(tail))
@@ -294,8 +380,9 @@ def main(argv: list[str] | None = None) -> int:
     files = render()
     existing = {p for p in VECTORS.glob("*/*") if p.suffix in (".bin", ".json")}
     if args.verify:
-        problems = [f"stale: {p.relative_to(VECTORS)}" for p, data in files.items()
-                    if not p.exists() or p.read_bytes() != data]
+        problems = [
+            f"stale: {p.relative_to(VECTORS)}" for p, data in files.items() if not p.exists() or p.read_bytes() != data
+        ]
         problems += [f"not generated (delete it): {p.relative_to(VECTORS)}" for p in existing - set(files)]
         for line in problems:
             print(line, file=sys.stderr)

@@ -20,8 +20,18 @@ def test_there_is_a_vector_for_every_message_and_every_rejection_rule() -> None:
     text = "".join(p.with_suffix(".json").read_text() for p in VECTORS)
     for cls in MESSAGE_TYPES.values():
         assert f'"type":"{cls.NAME}"' in text, cls.NAME
-    for counter in ("oversized", "cobs_error", "truncated", "crc_error", "wrong_version", "unknown_type",
-                    "bad_length", "seq_gaps", "seq_resets", "pending_bytes"):
+    for counter in (
+        "oversized",
+        "cobs_error",
+        "truncated",
+        "crc_error",
+        "wrong_version",
+        "unknown_type",
+        "bad_length",
+        "seq_gaps",
+        "seq_resets",
+        "pending_bytes",
+    ):
         assert f'"{counter}":0' in text and f'"{counter}":' in text.replace(f'"{counter}":0', ""), counter
 
 
@@ -38,15 +48,16 @@ def test_cpp_runner_matches_expected(vector: Path, cpp_vector_runner: Path) -> N
 
 def test_python_runner_is_a_command() -> None:
     vector = ROOT / "protocol" / "vectors" / "valid" / "ping_typical.bin"
-    out = subprocess.run([sys.executable, "-m", "icgt.protocol.runner", str(vector)], capture_output=True,
-                         text=True, check=True)
+    out = subprocess.run(
+        [sys.executable, "-m", "icgt.protocol.runner", str(vector)], capture_output=True, text=True, check=True
+    )
     assert out.stdout.strip() == vector.with_suffix(".json").read_text().strip()
 
 
 def test_generated_code_and_vectors_are_fresh() -> None:
-    gen = subprocess.run([sys.executable, ROOT / "protocol" / "generate.py", "--check"], capture_output=True,
-                         text=True)
+    gen = subprocess.run([sys.executable, ROOT / "protocol" / "generate.py", "--check"], capture_output=True, text=True)
     assert gen.returncode == 0, gen.stderr
-    vec = subprocess.run([sys.executable, ROOT / "protocol" / "make_vectors.py", "--verify"],
-                         capture_output=True, text=True)
+    vec = subprocess.run(
+        [sys.executable, ROOT / "protocol" / "make_vectors.py", "--verify"], capture_output=True, text=True
+    )
     assert vec.returncode == 0, vec.stderr

@@ -54,7 +54,7 @@ def dumps(value: JsonValue) -> str:
             return '"NaN"'
         if math.isinf(value):
             return '"Infinity"' if value > 0 else '"-Infinity"'
-        return "%.17g" % value
+        return f"{value:.17g}"
     if isinstance(value, str):
         return _string(value)
     if isinstance(value, Mapping):

@@ -34,6 +34,14 @@ _HEADER = struct.Struct("<BBBBI")
 _CRC = struct.Struct("<I")
 _MIN_DECODED = HEADER_BYTES + CRC_BYTES
 _RETRANSMIT = int(FrameFlags.RETRANSMIT)
+# CRC-32 run over data followed by its own CRC (little-endian) always gives this residue,
+# so one C call checks a frame without slicing off its last four bytes.
+_CRC32_RESIDUE = 0x2144DF1C
+_new_received = tuple.__new__  # NamedTuple's own __new__ costs 4x more per message
+_cobs_decode = cobs.decode
+_CobsError = cobs.DecodeError
+_crc32 = zlib.crc32
+_unpack_header = _HEADER.unpack_from
 
 
 class Received(NamedTuple):
@@ -56,7 +64,8 @@ def encode_frame(message: Message, seq: int, flags: int = 0) -> bytes:
         raise EncodeError(f"{message.NAME}: {exc}") from exc
     if len(raw) - HEADER_BYTES > MAX_BODY_BYTES:
         raise EncodeError(f"{message.NAME}: body of {len(raw) - HEADER_BYTES} bytes exceeds {MAX_BODY_BYTES}")
-    return cobs.encode(raw + _CRC.pack(zlib.crc32(raw))) + b"\x00"
+    encoded: bytes = cobs.encode(raw + _CRC.pack(zlib.crc32(raw)))
+    return encoded + b"\x00"
 
 
 @dataclass(slots=True)
@@ -111,64 +120,65 @@ class StreamDecoder:
         """Consume bytes; return the messages of every frame they completed, in order."""
         parts = (self._pending + bytes(data)).split(b"\x00") if self._pending else bytes(data).split(b"\x00")
         tail = parts.pop()
-        out: list[Received] = []
+        stats = self.stats
         if parts and self._overflow:
             # The first part finishes a frame that was already too long: SPEC.md §6 rule b.
-            self.stats.oversized += 1
+            stats.oversized += 1
             self._overflow = False
             parts[0] = b""
-        for part in parts:
-            if part:
-                received = self._candidate(part)
-                if received is not None:
-                    out.append(received)
         if self._overflow or len(tail) > MAX_ENCODED_BYTES:
             self._overflow = True
             self._pending = b""
         else:
             self._pending = tail
-        return out
-
-    def _candidate(self, part: bytes) -> Received | None:
-        stats = self.stats
-        if len(part) > MAX_ENCODED_BYTES:
-            stats.oversized += 1
-            return None
-        try:
-            raw = cobs.decode(part)
-        except cobs.DecodeError:
-            stats.cobs_error += 1
-            return None
-        n = len(raw)
-        if n < _MIN_DECODED:
-            stats.truncated += 1
-            return None
-        if zlib.crc32(memoryview(raw)[: n - CRC_BYTES]) != _CRC.unpack_from(raw, n - CRC_BYTES)[0]:
-            stats.crc_error += 1
-            return None
-        version, msg_type, flags, _reserved, seq = _HEADER.unpack_from(raw)
-        if version != PROTOCOL_VERSION:
-            stats.wrong_version += 1
-            stats.last_foreign_version = version
-            return None
-        cls = MESSAGE_TYPES.get(msg_type)
-        if cls is None:
-            stats.unknown_type += 1
-            return None
-        body = raw[HEADER_BYTES : n - CRC_BYTES]
-        if not cls.MIN_BODY <= len(body) <= cls.MAX_BODY:
-            stats.bad_length += 1
-            return None
-        message = cls.from_body(body)
-        stats.frames_ok += 1
-        if not flags & _RETRANSMIT:
-            expected = self._expected_seq
-            if expected is not None and seq != expected:
+        # The loop body is SPEC.md §6 rules c-i, inlined: at ~1 µs per message a method call
+        # per frame would be a tenth of the decoder's time.
+        out: list[Received] = []
+        append = out.append
+        expected = self._expected_seq
+        types = MESSAGE_TYPES
+        for part in parts:
+            if not part:
+                continue
+            if len(part) > MAX_ENCODED_BYTES:
+                stats.oversized += 1
+                continue
+            try:
+                raw = _cobs_decode(part)
+            except _CobsError:
+                stats.cobs_error += 1
+                continue
+            n = len(raw)
+            if n < _MIN_DECODED:
+                stats.truncated += 1
+                continue
+            if _crc32(raw) != _CRC32_RESIDUE:
+                stats.crc_error += 1
+                continue
+            version, msg_type, flags, _reserved, seq = _unpack_header(raw)
+            if version != PROTOCOL_VERSION:
+                stats.wrong_version += 1
+                stats.last_foreign_version = version
+                continue
+            cls = types.get(msg_type)
+            if cls is None:
+                stats.unknown_type += 1
+                continue
+            end = n - CRC_BYTES
+            if not cls.MIN_BODY <= end - HEADER_BYTES <= cls.MAX_BODY:
+                stats.bad_length += 1
+                continue
+            append(_new_received(Received, (seq, flags, cls.from_buffer(raw, HEADER_BYTES, end))))
+            if flags & _RETRANSMIT:
+                continue  # resends carry their original seq and move no expectation (SPEC.md §3)
+            if seq != expected and expected is not None:
                 d = (seq - expected) & 0xFFFFFFFF
                 if d < 0x80000000:
                     stats.seq_gaps += 1
                     stats.seq_missed += d
                 else:
                     stats.seq_resets += 1
-            self._expected_seq = (seq + 1) & 0xFFFFFFFF
-        return Received(seq, flags, message)
+            expected = (seq + 1) & 0xFFFFFFFF
+        self._expected_seq = expected
+        stats.frames_ok += len(out)
+        return out

@@ -180,9 +180,14 @@ class Message:
         raise NotImplementedError
 
     @classmethod
+    def from_buffer(cls, buf: bytes, offset: int, end: int) -> Message:
+        """Build from the body at buf[offset:end], whose length the caller has checked."""
+        raise NotImplementedError
+
+    @classmethod
     def from_body(cls, body: bytes) -> Message:
         """Build from a body whose length the caller has checked."""
-        raise NotImplementedError
+        return cls.from_buffer(body, 0, len(body))
 
 
 _S_HELLO = struct.Struct('<BIQ16sBIBqB')
@@ -225,8 +230,8 @@ class Hello(Message):
         return _S_HELLO.pack(self.protocol_version, self.table_hash, self.t_us, firmware_version, self.board, self.serial_number, self.clock_source, self.rtc_utc_us_at_boot, self.lidar_model)
 
     @classmethod
-    def from_body(cls, body: bytes) -> Hello:
-        v = list(_S_HELLO.unpack(body))
+    def from_buffer(cls, buf: bytes, offset: int, end: int) -> Hello:
+        v = list(_S_HELLO.unpack_from(buf, offset))
         v[3] = v[3].split(b"\0", 1)[0].decode("utf-8", "replace")
         return cls(*v)
 
@@ -288,8 +293,8 @@ class Status(Message):
         return _S_STATUS.pack(self.t_us, self.capture_state, self.sensor_health, self.triggers_fired, self.exposures_confirmed, self.feedback_missing, self.feedback_unsolicited, self.messages_sent, self.dropped_imu, self.dropped_range, self.dropped_log, self.dropped_event, self.i2c_errors, self.imu_reinits, self.lidar_reinits, self.rx_frames_ok, self.rx_frames_rejected, self.rx_seq_missed, self.loop_max_us)
 
     @classmethod
-    def from_body(cls, body: bytes) -> Status:
-        return cls(*_S_STATUS.unpack(body))
+    def from_buffer(cls, buf: bytes, offset: int, end: int) -> Status:
+        return cls(*_S_STATUS.unpack_from(buf, offset))
 
 
 _S_EXPOSURE = struct.Struct('<IBBQQQI')
@@ -325,8 +330,8 @@ class Exposure(Message):
         return _S_EXPOSURE.pack(self.image_index, self.camera_id, self.flags, self.trigger_t_us, self.feedback_start_t_us, self.feedback_end_t_us, self.duration_us)
 
     @classmethod
-    def from_body(cls, body: bytes) -> Exposure:
-        return cls(*_S_EXPOSURE.unpack(body))
+    def from_buffer(cls, buf: bytes, offset: int, end: int) -> Exposure:
+        return cls(*_S_EXPOSURE.unpack_from(buf, offset))
 
 
 _S_IMU = struct.Struct('<QQfffffffffffffBB')
@@ -382,8 +387,8 @@ class Imu(Message):
         return _S_IMU.pack(self.read_start_t_us, self.read_end_t_us, self.quat_w, self.quat_x, self.quat_y, self.quat_z, self.gyro_x_rad_s, self.gyro_y_rad_s, self.gyro_z_rad_s, self.accel_x_m_s2, self.accel_y_m_s2, self.accel_z_m_s2, self.lin_accel_x_m_s2, self.lin_accel_y_m_s2, self.lin_accel_z_m_s2, self.calib_stat, self.flags)
 
     @classmethod
-    def from_body(cls, body: bytes) -> Imu:
-        return cls(*_S_IMU.unpack(body))
+    def from_buffer(cls, buf: bytes, offset: int, end: int) -> Imu:
+        return cls(*_S_IMU.unpack_from(buf, offset))
 
 
 _S_RANGE = struct.Struct('<QQHBB')
@@ -415,8 +420,8 @@ class Range(Message):
         return _S_RANGE.pack(self.acq_start_t_us, self.read_t_us, self.distance_cm, self.signal_strength, self.flags)
 
     @classmethod
-    def from_body(cls, body: bytes) -> Range:
-        return cls(*_S_RANGE.unpack(body))
+    def from_buffer(cls, buf: bytes, offset: int, end: int) -> Range:
+        return cls(*_S_RANGE.unpack_from(buf, offset))
 
 
 _S_PPS = struct.Struct('<QI')
@@ -442,8 +447,8 @@ class Pps(Message):
         return _S_PPS.pack(self.t_us, self.pps_count)
 
     @classmethod
-    def from_body(cls, body: bytes) -> Pps:
-        return cls(*_S_PPS.unpack(body))
+    def from_buffer(cls, buf: bytes, offset: int, end: int) -> Pps:
+        return cls(*_S_PPS.unpack_from(buf, offset))
 
 
 _S_TIME_SYNC_REPLY = struct.Struct('<QIQQ')
@@ -473,8 +478,8 @@ class TimeSyncReply(Message):
         return _S_TIME_SYNC_REPLY.pack(self.host_t_ns, self.request_seq, self.device_rx_t_us, self.device_tx_t_us)
 
     @classmethod
-    def from_body(cls, body: bytes) -> TimeSyncReply:
-        return cls(*_S_TIME_SYNC_REPLY.unpack(body))
+    def from_buffer(cls, buf: bytes, offset: int, end: int) -> TimeSyncReply:
+        return cls(*_S_TIME_SYNC_REPLY.unpack_from(buf, offset))
 
 
 _S_ACK = struct.Struct('<IBBI')
@@ -504,8 +509,8 @@ class Ack(Message):
         return _S_ACK.pack(self.request_seq, self.request_type, self.error_code, self.detail)
 
     @classmethod
-    def from_body(cls, body: bytes) -> Ack:
-        return cls(*_S_ACK.unpack(body))
+    def from_buffer(cls, buf: bytes, offset: int, end: int) -> Ack:
+        return cls(*_S_ACK.unpack_from(buf, offset))
 
 
 _S_LOG = struct.Struct('<QB')
@@ -536,9 +541,9 @@ class Log(Message):
         return _S_LOG.pack(self.t_us, self.level) + text
 
     @classmethod
-    def from_body(cls, body: bytes) -> Log:
-        v = list(_S_LOG.unpack_from(body))
-        v.append(body[9:].decode("utf-8", "replace"))
+    def from_buffer(cls, buf: bytes, offset: int, end: int) -> Log:
+        v = list(_S_LOG.unpack_from(buf, offset))
+        v.append(buf[offset + 9 : end].decode("utf-8", "replace"))
         return cls(*v)
 
 
@@ -575,8 +580,8 @@ class StartCapture(Message):
         return _S_START_CAPTURE.pack(self.mode, self.camera_id, self.interval_us, self.count, self.focus_lead_us, self.burst_us, self.shutter_pulse_us)
 
     @classmethod
-    def from_body(cls, body: bytes) -> StartCapture:
-        return cls(*_S_START_CAPTURE.unpack(body))
+    def from_buffer(cls, buf: bytes, offset: int, end: int) -> StartCapture:
+        return cls(*_S_START_CAPTURE.unpack_from(buf, offset))
 
 
 _S_STOP_CAPTURE = struct.Struct('<B')
@@ -600,8 +605,8 @@ class StopCapture(Message):
         return _S_STOP_CAPTURE.pack(self.camera_id)
 
     @classmethod
-    def from_body(cls, body: bytes) -> StopCapture:
-        return cls(*_S_STOP_CAPTURE.unpack(body))
+    def from_buffer(cls, buf: bytes, offset: int, end: int) -> StopCapture:
+        return cls(*_S_STOP_CAPTURE.unpack_from(buf, offset))
 
 
 _S_CONFIGURE = struct.Struct('<HBBHBBHBBI')
@@ -643,8 +648,8 @@ class Configure(Message):
         return _S_CONFIGURE.pack(self.imu_rate_hz, self.imu_mode, self.imu_ext_crystal, self.range_rate_hz, self.lidar_model, self.lidar_preset, self.lidar_bias_every, self.polarity, self.feedback_enabled, self.feedback_timeout_us)
 
     @classmethod
-    def from_body(cls, body: bytes) -> Configure:
-        return cls(*_S_CONFIGURE.unpack(body))
+    def from_buffer(cls, buf: bytes, offset: int, end: int) -> Configure:
+        return cls(*_S_CONFIGURE.unpack_from(buf, offset))
 
 
 _S_TIME_SYNC = struct.Struct('<Q')
@@ -668,8 +673,8 @@ class TimeSync(Message):
         return _S_TIME_SYNC.pack(self.host_t_ns)
 
     @classmethod
-    def from_body(cls, body: bytes) -> TimeSync:
-        return cls(*_S_TIME_SYNC.unpack(body))
+    def from_buffer(cls, buf: bytes, offset: int, end: int) -> TimeSync:
+        return cls(*_S_TIME_SYNC.unpack_from(buf, offset))
 
 
 _S_SET_TIME = struct.Struct('<q')
@@ -693,8 +698,8 @@ class SetTime(Message):
         return _S_SET_TIME.pack(self.utc_us)
 
     @classmethod
-    def from_body(cls, body: bytes) -> SetTime:
-        return cls(*_S_SET_TIME.unpack(body))
+    def from_buffer(cls, buf: bytes, offset: int, end: int) -> SetTime:
+        return cls(*_S_SET_TIME.unpack_from(buf, offset))
 
 
 _S_PING = struct.Struct('<I')
@@ -718,8 +723,8 @@ class Ping(Message):
         return _S_PING.pack(self.nonce)
 
     @classmethod
-    def from_body(cls, body: bytes) -> Ping:
-        return cls(*_S_PING.unpack(body))
+    def from_buffer(cls, buf: bytes, offset: int, end: int) -> Ping:
+        return cls(*_S_PING.unpack_from(buf, offset))
 
 
 _S_RESEND = struct.Struct('<IH')
@@ -745,8 +750,8 @@ class Resend(Message):
         return _S_RESEND.pack(self.first_seq, self.count)
 
     @classmethod
-    def from_body(cls, body: bytes) -> Resend:
-        return cls(*_S_RESEND.unpack(body))
+    def from_buffer(cls, buf: bytes, offset: int, end: int) -> Resend:
+        return cls(*_S_RESEND.unpack_from(buf, offset))
 
 
 MESSAGE_TYPES: dict[int, type[Message]] = {

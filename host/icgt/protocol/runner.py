@@ -1,6 +1,6 @@
 """Decode a protocol test vector with the Python codec and print its canonical JSON.
 
-    python -m icgt.protocol.runner VECTOR.bin
+python -m icgt.protocol.runner VECTOR.bin
 """
 
 from __future__ import annotations

@@ -46,7 +46,7 @@ class SimI2cBus final : public hal::I2cBus {
   void fail_next(uint8_t addr7, std::size_t count, hal::I2cStatus status = hal::I2cStatus::nack_address);
 
   [[nodiscard]] hal::I2cStatus transfer(uint8_t addr7, const uint8_t* send, std::size_t send_len, uint8_t* recv,
-                                        std::size_t recv_len, hal::I2cJoin join) override;
+                                        std::size_t recv_len, hal::I2cJoin join = hal::I2cJoin::repeated_start) override;
 
   // Transaction recording (off by default; a simulator running for hours must not grow).
   void set_recording(bool on) { recording_ = on; }

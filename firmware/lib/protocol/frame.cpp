@@ -59,6 +59,13 @@ StreamDecoder::Status StreamDecoder::finish_candidate() {
   if (n < kHeaderBytes + kCrcBytes) return reject(Reject::truncated);
   const std::size_t covered = n - kCrcBytes;
   if (crc32(decoded_, covered) != wire::get<uint32_t>(decoded_ + covered)) return reject(Reject::crc_error);
+  // The CRC passed, so the header can be trusted even if the frame is refused below: a
+  // device can then answer an unknown or malformed command with a NACK naming its seq.
+  header_.version = decoded_[0];
+  header_.type = decoded_[1];
+  header_.flags = decoded_[2];
+  header_.seq = wire::get<uint32_t>(decoded_ + 4);
+  body_len_ = covered - kHeaderBytes;
   if (decoded_[0] != kProtocolVersion) {
     stats_.last_foreign_version = decoded_[0];
     return reject(Reject::wrong_version);
@@ -66,13 +73,7 @@ StreamDecoder::Status StreamDecoder::finish_candidate() {
   std::size_t min_len = 0;
   std::size_t max_len = 0;
   if (!body_size_range(decoded_[1], min_len, max_len)) return reject(Reject::unknown_type);
-  const std::size_t body_len = covered - kHeaderBytes;
-  if (body_len < min_len || body_len > max_len) return reject(Reject::bad_length);
-  header_.version = decoded_[0];
-  header_.type = decoded_[1];
-  header_.flags = decoded_[2];
-  header_.seq = wire::get<uint32_t>(decoded_ + 4);
-  body_len_ = body_len;
+  if (body_len_ < min_len || body_len_ > max_len) return reject(Reject::bad_length);
   last_reject_ = Reject::none;
   ++stats_.frames_ok;
   track_sequence();

@@ -78,7 +78,8 @@ class StreamDecoder {
   enum class Status : uint8_t {
     pending,   // byte taken, no frame completed
     frame,     // a valid frame completed: header() and body() describe it until the next push
-    rejected,  // a candidate frame completed and was rejected: last_reject() says why
+    rejected,  // a candidate frame completed and was rejected: last_reject() says why;
+               // for wrong_version, unknown_type and bad_length (CRC passed) header() is valid
   };
 
   [[nodiscard]] Status push(uint8_t byte);

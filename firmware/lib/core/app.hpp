@@ -1,0 +1,114 @@
+// The ICGT device application: everything the firmware does, on any board.
+//
+// Composition roots (the Teensy's src/main.cpp, the simulator, tests) build the board's
+// HAL objects, hand them to App in AppPorts, call begin() once and poll() forever. App owns
+// the trigger, exposure pairing, timebase, sensor drivers, the command decoder and the
+// outbox. poll() never blocks: each call does a bounded amount of I2C and serial work;
+// shots are fired by the trigger's alarm interrupt, never by poll().
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+
+#include "core/bno055.hpp"
+#include "core/exposure_pairing.hpp"
+#include "core/lidar_lite.hpp"
+#include "core/outbox.hpp"
+#include "core/timebase.hpp"
+#include "core/trigger.hpp"
+#include "frame.hpp"
+#include "hal/hal.hpp"
+
+namespace icgt::core {
+
+struct AppPorts {
+  const hal::Clock& clock;
+  hal::ByteStream& link;
+  hal::I2cBus& i2c;
+  hal::Alarm& trigger_alarm;
+  hal::DigitalOut& shutter;
+  hal::DigitalOut& focus;
+  hal::EdgeInput* feedback;  // camera hot-shoe / flash sync; null if not wired
+  hal::EdgeInput* pps;       // GPS pulse per second; null if not wired
+  hal::Rtc& rtc;
+};
+
+struct BoardIdentity {
+  proto::Board board = proto::Board::unknown;
+  uint32_t serial_number = 0;
+  const char* firmware_version = "0.0.0";
+};
+
+// What the device does until the host sends CONFIGURE.
+struct DeviceConfig {
+  uint16_t imu_rate_hz = 100;
+  uint8_t imu_mode = 0x0C;  // NDOF
+  bool imu_ext_crystal = false;
+  uint16_t range_rate_hz = 500;
+  proto::LidarModel lidar_model = proto::LidarModel::v3;
+  uint8_t lidar_preset = 0;
+  uint16_t lidar_bias_every = 100;
+  uint8_t polarity = proto::PinPolarity::focus_active_high | proto::PinPolarity::shutter_active_high |
+                     proto::PinPolarity::pps_rising;  // feedback active low: hot shoes pull down
+  bool feedback_enabled = true;                        // when the board wires the line
+  uint32_t feedback_timeout_us = 150'000;  // below the 200 ms of 5 fps: see App::start_capture
+};
+
+class App {
+ public:
+  static constexpr uint64_t kStatusPeriodUs = 1'000'000;
+  static constexpr std::size_t kRxChunkBytes = 64;
+
+  App(const AppPorts& ports, const BoardIdentity& identity, const DeviceConfig& config = {});
+  App(const App&) = delete;
+  App& operator=(const App&) = delete;
+
+  // Once, after the board is up: anchors the timebase and queues HELLO.
+  void begin();
+  // One main-loop iteration.
+  void poll();
+
+  [[nodiscard]] const Trigger& trigger() const { return trigger_; }
+  [[nodiscard]] const Outbox& outbox() const { return outbox_; }
+  [[nodiscard]] const Bno055& imu() const { return imu_; }
+  [[nodiscard]] const LidarLite& lidar() const { return lidar_; }
+  [[nodiscard]] const Timebase& timebase() const { return timebase_; }
+  [[nodiscard]] const DeviceConfig& config() const { return config_; }
+  [[nodiscard]] const proto::DecoderStats& rx_stats() const { return rx_.stats(); }
+  [[nodiscard]] proto::Status status(uint64_t now_us);
+
+ private:
+  void receive(uint64_t now_us);
+  void on_frame(uint64_t rx_t_us);
+  void on_rejected_frame();
+  void ack(proto::ErrorCode code, uint32_t detail = 0);
+  [[nodiscard]] proto::ErrorCode start_capture(const proto::StartCapture& cmd, uint64_t now_us);
+  [[nodiscard]] proto::ErrorCode configure(const proto::Configure& cmd);
+  void step_sensors(uint64_t now_us);
+  void drain_exposures(uint64_t now_us);
+  void drain_pps();
+  void report_sensor_states(uint64_t now_us);
+  void send_hello(uint64_t now_us);
+  void log(uint64_t now_us, proto::LogLevel level, const char* text, uint32_t number = 0, bool with_number = false);
+
+  const AppPorts ports_;
+  const BoardIdentity identity_;
+  DeviceConfig config_;
+  Trigger trigger_;
+  ExposurePairing pairing_;
+  Timebase timebase_;
+  Bno055 imu_;
+  LidarLite lidar_;
+  Outbox outbox_;
+  proto::StreamDecoder rx_;
+
+  bool imu_enabled_;
+  bool lidar_enabled_;
+  bool link_up_ = false;
+  uint64_t next_status_t_us_ = 0;
+  uint32_t loop_max_us_ = 0;
+  Bno055State last_imu_state_ = Bno055State::initialising;
+  LidarState last_lidar_state_ = LidarState::configuring;
+};
+
+}  // namespace icgt::core

@@ -1,0 +1,385 @@
+// The device application end to end on the simulated board: commands and their refusals,
+// the stream a capture produces, sensor failures, link saturation and unplugging.
+#include <gtest/gtest.h>
+
+#include <cstring>
+#include <map>
+#include <vector>
+
+#include "board/sim_board.hpp"
+#include "frame.hpp"
+
+namespace icgt {
+namespace {
+
+using proto::ErrorCode;
+
+struct Frame {
+  uint8_t type;
+  uint32_t seq;
+  std::vector<uint8_t> body;
+
+  template <class Msg>
+  Msg as() const {
+    Msg m;
+    EXPECT_TRUE(m.decode(body.data(), body.size()));
+    return m;
+  }
+};
+
+class Host {
+ public:
+  explicit Host(sim::MemoryStream& link) : link_(link) {}
+
+  template <class Msg>
+  uint32_t send(const Msg& msg) {
+    uint8_t wire[proto::kMaxWireBytes];
+    const std::size_t n = proto::encode_message(msg, seq_, 0, wire, sizeof wire);
+    EXPECT_GT(n, 0u);
+    link_.host_send(wire, n);
+    return seq_++;
+  }
+
+  // Decodes everything the device sent since the last call.
+  void collect() {
+    for (uint8_t b : link_.host_take()) {
+      if (dec_.push(b) == proto::StreamDecoder::Status::frame) {
+        frames_.push_back({dec_.header().type, dec_.header().seq,
+                           std::vector<uint8_t>(dec_.body(), dec_.body() + dec_.body_len())});
+      }
+    }
+  }
+
+  std::vector<Frame> of(proto::MsgId id) const {
+    std::vector<Frame> out;
+    for (const auto& f : frames_) {
+      if (f.type == static_cast<uint8_t>(id)) out.push_back(f);
+    }
+    return out;
+  }
+
+  proto::Ack ack_for(uint32_t seq) const {
+    for (const auto& f : of(proto::MsgId::ACK)) {
+      const auto a = f.as<proto::Ack>();
+      if (a.request_seq == seq) return a;
+    }
+    ADD_FAILURE() << "no ACK for host seq " << seq;
+    return {};
+  }
+
+  const proto::DecoderStats& stats() const { return dec_.stats(); }
+  std::vector<Frame>& frames() { return frames_; }
+
+ private:
+  sim::MemoryStream& link_;
+  proto::StreamDecoder dec_;
+  std::vector<Frame> frames_;
+  uint32_t seq_ = 0;
+};
+
+proto::StartCapture interval_capture(uint32_t interval_us = 200'000, uint32_t pulse_us = 20'000) {
+  proto::StartCapture s;
+  s.mode = static_cast<uint8_t>(proto::CaptureMode::interval);
+  s.interval_us = interval_us;
+  s.shutter_pulse_us = pulse_us;
+  return s;
+}
+
+proto::Configure default_configure() {
+  proto::Configure c;
+  c.imu_rate_hz = 100;
+  c.imu_mode = 0x0C;
+  c.range_rate_hz = 500;
+  c.lidar_model = static_cast<uint8_t>(proto::LidarModel::v3);
+  c.lidar_bias_every = 100;
+  c.polarity = proto::PinPolarity::focus_active_high | proto::PinPolarity::shutter_active_high;
+  c.feedback_enabled = 1;
+  c.feedback_timeout_us = 150'000;
+  return c;
+}
+
+struct Rig {
+  explicit Rig(sim::SimBoardConfig cfg = {}) : board(cfg, link), host(link) {
+    board.begin();
+  }
+  void run_for(uint64_t dt_us) {
+    const uint64_t end = board.clock().now_us() + dt_us;
+    while (board.clock().now_us() < end) {
+      board.run_until(std::min(end, board.clock().now_us() + 10'000));
+      host.collect();
+    }
+  }
+  sim::MemoryStream link;
+  sim::SimBoard board;
+  Host host;
+};
+
+TEST(App, SaysHelloAtBootWithVersionHashAndBoard) {
+  Rig rig;
+  rig.run_for(10'000);
+  const auto hellos = rig.host.of(proto::MsgId::HELLO);
+  ASSERT_EQ(hellos.size(), 1u);
+  const auto h = hellos[0].as<proto::Hello>();
+  EXPECT_EQ(h.protocol_version, proto::kProtocolVersion);
+  EXPECT_EQ(h.table_hash, proto::kTableHash);
+  EXPECT_EQ(h.board, static_cast<uint8_t>(proto::Board::simulator));
+  EXPECT_EQ(std::string(h.firmware_version, 3), "sim");
+  EXPECT_EQ(rig.host.frames().front().seq, 0u);
+}
+
+TEST(App, IntervalCaptureStreamsEveryExposureWithFeedbackAndSensorsAtTheirRates) {
+  Rig rig;
+  rig.run_for(2'000'000);  // the BNO055 needs ~1.4 s to boot and initialise
+  const uint32_t start_seq = rig.host.send(interval_capture());
+  rig.run_for(10'000'000);
+  const uint32_t stop_seq = rig.host.send(proto::StopCapture{});
+  rig.run_for(1'500'000);  // one more STATUS after the last exposure
+  EXPECT_EQ(rig.host.ack_for(start_seq).error_code, static_cast<uint8_t>(ErrorCode::ok));
+  EXPECT_EQ(rig.host.ack_for(stop_seq).error_code, static_cast<uint8_t>(ErrorCode::ok));
+
+  const auto exposures = rig.host.of(proto::MsgId::EXPOSURE);
+  const auto& truth = rig.board.camera().exposures();
+  ASSERT_EQ(exposures.size(), truth.size());
+  ASSERT_GE(exposures.size(), 50u);
+  for (std::size_t i = 0; i < exposures.size(); ++i) {
+    const auto e = exposures[i].as<proto::Exposure>();
+    EXPECT_EQ(e.image_index, i + 1) << "image indices have no gaps";
+    EXPECT_EQ(e.flags, 0u);
+    EXPECT_EQ(e.trigger_t_us, truth[i].trigger_t_us);
+    EXPECT_EQ(e.feedback_start_t_us, truth[i].start_t_us) << "feedback stamped to the microsecond";
+    EXPECT_EQ(e.feedback_end_t_us, truth[i].end_t_us);
+    EXPECT_EQ(e.duration_us, 1000u);
+    if (i > 0) {
+      EXPECT_EQ(e.trigger_t_us - exposures[i - 1].as<proto::Exposure>().trigger_t_us, 200'000u);
+    }
+  }
+  const auto imu = rig.host.of(proto::MsgId::IMU);
+  const auto range = rig.host.of(proto::MsgId::RANGE);
+  ASSERT_GT(imu.size(), 500u);
+  ASSERT_GT(range.size(), 2500u);
+  const auto rate_hz = [](const std::vector<Frame>& v, auto stamp) {
+    return static_cast<double>(v.size() - 1) * 1e6 / static_cast<double>(stamp(v.back()) - stamp(v.front()));
+  };
+  EXPECT_NEAR(rate_hz(imu, [](const Frame& f) { return f.as<proto::Imu>().read_start_t_us; }), 100.0, 0.5);
+  EXPECT_NEAR(rate_hz(range, [](const Frame& f) { return f.as<proto::Range>().acq_start_t_us; }), 500.0, 5.0);
+  EXPECT_EQ(rig.host.stats().seq_missed, 0u);
+  EXPECT_EQ(rig.host.stats().rejected(), 0u);
+
+  const auto statuses = rig.host.of(proto::MsgId::STATUS);
+  ASSERT_GE(statuses.size(), 12u);
+  const auto last = statuses.back().as<proto::Status>();
+  EXPECT_EQ(last.triggers_fired, exposures.size());
+  EXPECT_EQ(last.exposures_confirmed, exposures.size());
+  EXPECT_EQ(last.dropped_event + last.dropped_imu + last.dropped_range, 0u);
+  EXPECT_EQ(last.sensor_health & (proto::SensorHealth::imu_ok | proto::SensorHealth::lidar_ok),
+            proto::SensorHealth::imu_ok | proto::SensorHealth::lidar_ok);
+}
+
+TEST(App, EveryCommandRefusalCase) {
+  Rig rig;
+  rig.run_for(2'000'000);
+  struct Case {
+    uint32_t seq;
+    ErrorCode want;
+    const char* what;
+  };
+  std::vector<Case> cases;
+  cases.push_back({rig.host.send(proto::StopCapture{}), ErrorCode::not_capturing, "stop while idle"});
+  cases.push_back({rig.host.send(interval_capture(10'000, 1'000)), ErrorCode::out_of_range, "interval < 50 ms"});
+  cases.push_back({rig.host.send(interval_capture(200'000, 300'000)), ErrorCode::out_of_range, "pulse > interval"});
+  cases.push_back({rig.host.send(interval_capture(100'000, 10'000)), ErrorCode::out_of_range,
+                   "feedback timeout (150 ms) not below the interval: pairing would be ambiguous"});
+  auto bad_mode = interval_capture();
+  bad_mode.mode = 9;
+  cases.push_back({rig.host.send(bad_mode), ErrorCode::out_of_range, "unknown mode"});
+  auto cfg = default_configure();
+  cfg.imu_rate_hz = 400;
+  cases.push_back({rig.host.send(cfg), ErrorCode::out_of_range, "IMU faster than 100 Hz"});
+  cfg = default_configure();
+  cfg.lidar_preset = 9;
+  cases.push_back({rig.host.send(cfg), ErrorCode::out_of_range, "no such LIDAR preset"});
+  cfg = default_configure();
+  cfg.feedback_timeout_us = 5'000'000;
+  cases.push_back({rig.host.send(cfg), ErrorCode::out_of_range, "feedback timeout > 2 s"});
+  proto::SetTime old;
+  old.utc_us = 946'684'800'000'000;  // 2000-01-01
+  cases.push_back({rig.host.send(old), ErrorCode::invalid_time, "time before 2020"});
+  cases.push_back({rig.host.send(proto::Resend{}), ErrorCode::not_supported, "resend reserved"});
+  cases.push_back({rig.host.send(proto::Pps{}), ErrorCode::unknown_command, "device-to-host type"});
+  cases.push_back({rig.host.send(interval_capture()), ErrorCode::ok, "a valid start"});
+  cases.push_back({rig.host.send(interval_capture()), ErrorCode::busy_capturing, "start while capturing"});
+  cases.push_back({rig.host.send(default_configure()), ErrorCode::busy_capturing, "configure while capturing"});
+  rig.run_for(300'000);
+  for (const auto& c : cases) {
+    EXPECT_EQ(rig.host.ack_for(c.seq).error_code, static_cast<uint8_t>(c.want)) << c.what;
+  }
+  EXPECT_EQ(rig.board.app().config().imu_rate_hz, 100) << "refused CONFIGUREs changed nothing";
+  EXPECT_EQ(rig.board.app().config().feedback_timeout_us, 150'000u);
+}
+
+TEST(App, MalformedAndUnknownFramesAreAnsweredWhenTheirHeaderIsTrustworthy) {
+  Rig rig;
+  rig.run_for(100'000);
+  uint8_t body[3] = {1, 2, 3};
+  uint8_t wire[proto::kMaxWireBytes];
+  proto::FrameHeader h;
+  h.type = static_cast<uint8_t>(proto::MsgId::PING);
+  h.seq = 0;
+  std::size_t n = proto::encode_frame(h, body, sizeof body, wire, sizeof wire);
+  rig.link.host_send(wire, n);
+  h.type = 0x7E;
+  h.seq = 1;
+  n = proto::encode_frame(h, body, 0, wire, sizeof wire);
+  rig.link.host_send(wire, n);
+  const uint8_t junk[] = {0x13, 0x37, 0x00};
+  rig.link.host_send(junk, sizeof junk);
+  rig.run_for(50'000);
+  EXPECT_EQ(rig.host.ack_for(0).error_code, static_cast<uint8_t>(ErrorCode::bad_length));
+  EXPECT_EQ(rig.host.ack_for(1).error_code, static_cast<uint8_t>(ErrorCode::unknown_command));
+  EXPECT_EQ(rig.board.app().rx_stats().rejected(), 3u);
+}
+
+TEST(App, TimeSyncReplyEchoesTheHostTimeAndStampsReceiveAndTransmit) {
+  Rig rig;
+  rig.run_for(50'000);
+  proto::TimeSync ts;
+  ts.host_t_ns = 123'456'789'000ull;
+  const uint64_t sent_at = rig.board.clock().now_us();
+  const uint32_t seq = rig.host.send(ts);
+  rig.run_for(5'000);
+  const auto replies = rig.host.of(proto::MsgId::TIME_SYNC_REPLY);
+  ASSERT_EQ(replies.size(), 1u);
+  const auto r = replies[0].as<proto::TimeSyncReply>();
+  EXPECT_EQ(r.host_t_ns, ts.host_t_ns);
+  EXPECT_EQ(r.request_seq, seq);
+  EXPECT_GE(r.device_rx_t_us, sent_at);
+  EXPECT_LE(r.device_rx_t_us - sent_at, 100u) << "received on the next loop iteration";
+  EXPECT_GE(r.device_tx_t_us, r.device_rx_t_us);
+}
+
+TEST(App, PingIsAckedWithItsNonceAndNonceZeroAsksForHello) {
+  Rig rig;
+  rig.run_for(10'000);
+  proto::Ping p;
+  p.nonce = 77;
+  const uint32_t s1 = rig.host.send(p);
+  p.nonce = 0;
+  rig.host.send(p);
+  rig.run_for(10'000);
+  EXPECT_EQ(rig.host.ack_for(s1).detail, 77u);
+  EXPECT_EQ(rig.host.of(proto::MsgId::HELLO).size(), 2u);
+}
+
+TEST(App, SetTimeAnchorsTheClockToUtc) {
+  Rig rig;
+  rig.run_for(10'000);
+  proto::SetTime st;
+  st.utc_us = 1'800'000'000'250'000;
+  const uint64_t t = rig.board.clock().now_us();
+  const uint32_t seq = rig.host.send(st);
+  rig.run_for(10'000);
+  EXPECT_EQ(rig.host.ack_for(seq).error_code, 0u);
+  int64_t utc = 0;
+  ASSERT_TRUE(rig.board.app().timebase().to_utc_us(t + 1000, utc));
+  EXPECT_NEAR(static_cast<double>(utc - st.utc_us), 1000.0, 200.0);
+}
+
+TEST(App, MissingSensorsDoNotStopCaptureAndAreReported) {
+  sim::SimBoardConfig cfg;
+  cfg.bno_fitted = false;
+  cfg.lidar_fitted = false;
+  Rig rig(cfg);
+  rig.run_for(3'000'000);
+  const uint32_t seq = rig.host.send(interval_capture());
+  rig.run_for(2'000'000);
+  EXPECT_EQ(rig.host.ack_for(seq).error_code, 0u);
+  EXPECT_GE(rig.host.of(proto::MsgId::EXPOSURE).size(), 9u);
+  EXPECT_TRUE(rig.host.of(proto::MsgId::IMU).empty());
+  const auto last = rig.host.of(proto::MsgId::STATUS).back().as<proto::Status>();
+  EXPECT_EQ(last.sensor_health & (proto::SensorHealth::imu_present | proto::SensorHealth::lidar_present), 0u);
+  bool logged = false;
+  for (const auto& f : rig.host.of(proto::MsgId::LOG)) {
+    const auto l = f.as<proto::Log>();
+    logged = logged || std::string(l.text, l.text_len).find("BNO055 not answering") != std::string::npos;
+  }
+  EXPECT_TRUE(logged);
+  auto c = default_configure();
+  rig.host.send(proto::StopCapture{});
+  const uint32_t cseq = rig.host.send(c);
+  rig.run_for(10'000);
+  EXPECT_EQ(rig.host.ack_for(cseq).error_code, static_cast<uint8_t>(ErrorCode::sensor_missing));
+}
+
+TEST(App, ImuResetMidCaptureIsReportedAndSamplesResume) {
+  Rig rig;
+  rig.run_for(2'000'000);
+  rig.host.send(interval_capture());
+  rig.board.bno().reset_at(rig.board.clock().now_us() + 1'000'000);
+  rig.run_for(6'000'000);
+  const auto last = rig.host.of(proto::MsgId::STATUS).back().as<proto::Status>();
+  EXPECT_EQ(last.imu_reinits, 1u);
+  EXPECT_EQ(last.exposures_confirmed, last.triggers_fired) << "the reset never delayed a shot";
+  bool flagged = false;
+  for (const auto& f : rig.host.of(proto::MsgId::IMU)) {
+    flagged = flagged || (f.as<proto::Imu>().flags & proto::ImuFlags::reinitialised) != 0;
+  }
+  EXPECT_TRUE(flagged);
+}
+
+TEST(App, SaturatedLinkShedsSamplesNeverExposuresAndCountsEveryDrop) {
+  Rig rig;
+  rig.run_for(2'000'000);
+  rig.host.send(interval_capture());
+  rig.run_for(100'000);
+  rig.link.set_tx_capacity(0);  // the host stops reading: USB buffers full
+  rig.run_for(5'000'000);
+  rig.link.set_tx_capacity(1 << 20);
+  rig.run_for(1'500'000);
+  const auto& truth = rig.board.camera().exposures();
+  const auto exposures = rig.host.of(proto::MsgId::EXPOSURE);
+  const auto last = rig.host.of(proto::MsgId::STATUS).back().as<proto::Status>();
+  EXPECT_EQ(exposures.size(), truth.size()) << "not one exposure lost";
+  EXPECT_EQ(last.dropped_event, 0u);
+  EXPECT_GT(last.dropped_imu, 300u);
+  EXPECT_GT(last.dropped_range, 1500u);
+  EXPECT_EQ(rig.host.stats().seq_missed, 0u) << "shed samples never got a sequence number";
+}
+
+TEST(App, UnpluggedLinkResynchronisesAndSaysHelloAgain) {
+  Rig rig;
+  rig.run_for(2'000'000);
+  rig.host.send(interval_capture());
+  rig.run_for(1'000'000);
+  rig.link.set_connected(false);
+  rig.run_for(3'000'000);
+  rig.link.set_connected(true);
+  rig.run_for(1'000'000);
+  EXPECT_EQ(rig.host.of(proto::MsgId::HELLO).size(), 2u);
+  EXPECT_EQ(rig.host.stats().rejected(), 0u);
+  const auto exposures = rig.host.of(proto::MsgId::EXPOSURE);
+  EXPECT_EQ(exposures.size(), rig.board.camera().exposures().size())
+      << "15 exposures during a 3 s unplug fit the event queue";
+}
+
+TEST(App, FeedbackMissedByTheCameraIsFlaggedNotShifted) {
+  sim::SimBoardConfig cfg;
+  cfg.camera.miss_every = 4;
+  Rig rig(cfg);
+  rig.run_for(2'000'000);
+  rig.host.send(interval_capture());
+  rig.run_for(4'000'000);
+  int missing = 0;
+  for (const auto& f : rig.host.of(proto::MsgId::EXPOSURE)) {
+    const auto e = f.as<proto::Exposure>();
+    if (e.image_index % 4 == 0) {
+      EXPECT_TRUE(e.flags & proto::ExposureFlags::feedback_missing) << e.image_index;
+      ++missing;
+    } else {
+      EXPECT_EQ(e.flags, 0u) << e.image_index;
+    }
+  }
+  EXPECT_GE(missing, 4);
+}
+
+}  // namespace
+}  // namespace icgt

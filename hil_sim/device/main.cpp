@@ -1,0 +1,297 @@
+// icgt-sim-device: the ICGT firmware on the simulated board, paced by the real clock and
+// reachable like a real board (a serial device or a TCP port). See hil_sim/README.md.
+#include <time.h>
+
+#include <csignal>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <memory>
+#include <sstream>
+#include <string>
+
+#include "board/sim_board.hpp"
+#include "device/control_socket.hpp"
+#include "device/host_port.hpp"
+#include "device/impaired_stream.hpp"
+#include "device/truth_table.hpp"
+
+namespace {
+
+volatile std::sig_atomic_t g_stop = 0;
+void on_signal(int) { g_stop = 1; }
+
+uint64_t monotonic_ns() {
+  timespec ts{};
+  ::clock_gettime(CLOCK_MONOTONIC, &ts);
+  return static_cast<uint64_t>(ts.tv_sec) * 1'000'000'000u + static_cast<uint64_t>(ts.tv_nsec);
+}
+
+struct Options {
+  std::string link = "pty";
+  std::string truth;
+  std::string events_out;
+  std::string control;
+  uint64_t t0_monotonic_ns = 0;
+  double device_offset_us = 0.0;
+  double device_drift_ppm = 0.0;
+  int64_t rtc_utc_s = 1'795'000'000;
+  int64_t utc0_us = 0;
+  bool pps = false;
+  bool feedback = true;
+  bool imu = true;
+  bool lidar = true;
+  std::string lidar_model = "v3";
+  double range_noise_cm = 2.0;
+  uint64_t seed = 1;
+  icgt::sim::CameraModelConfig camera{};
+  icgt::sim::LinkImpairment impairment{};
+};
+
+[[noreturn]] void usage(const char* why) {
+  std::fprintf(stderr,
+               "icgt-sim-device: %s\n"
+               "usage: icgt-sim-device --truth FILE [--t0-monotonic-ns N] [--link pty[:PATH]|tcp:PORT]\n"
+               "  [--device-offset-us X] [--device-drift-ppm Y] [--rtc-utc-s S] [--utc0-us U] [--pps]\n"
+               "  [--camera-latency-us N] [--camera-jitter-us N] [--camera-exposure-us N] [--camera-miss-every N]\n"
+               "  [--no-feedback] [--no-imu] [--no-lidar] [--lidar-model v3|v3hp] [--range-noise-cm S]\n"
+               "  [--usb-frame-us N] [--usb-jitter-us N] [--seed N] [--events-out FILE] [--control PATH]\n"
+               "see hil_sim/README.md\n",
+               why);
+  std::exit(2);
+}
+
+Options parse(int argc, char** argv) {
+  Options o;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto value = [&]() -> std::string {
+      if (i + 1 >= argc) usage(("missing value for " + a).c_str());
+      return argv[++i];
+    };
+    auto number = [&]() -> double {
+      const std::string v = value();
+      char* end = nullptr;
+      const double d = std::strtod(v.c_str(), &end);
+      if (end == v.c_str() || *end != '\0') usage(("not a number for " + a + ": " + v).c_str());
+      return d;
+    };
+    if (a == "--link") o.link = value();
+    else if (a == "--truth") o.truth = value();
+    else if (a == "--events-out") o.events_out = value();
+    else if (a == "--control") o.control = value();
+    else if (a == "--t0-monotonic-ns") o.t0_monotonic_ns = std::strtoull(value().c_str(), nullptr, 10);
+    else if (a == "--device-offset-us") o.device_offset_us = number();
+    else if (a == "--device-drift-ppm") o.device_drift_ppm = number();
+    else if (a == "--rtc-utc-s") o.rtc_utc_s = static_cast<int64_t>(number());
+    else if (a == "--utc0-us") o.utc0_us = std::strtoll(value().c_str(), nullptr, 10);
+    else if (a == "--pps") o.pps = true;
+    else if (a == "--no-feedback") o.feedback = false;
+    else if (a == "--no-imu") o.imu = false;
+    else if (a == "--no-lidar") o.lidar = false;
+    else if (a == "--lidar-model") o.lidar_model = value();
+    else if (a == "--range-noise-cm") o.range_noise_cm = number();
+    else if (a == "--seed") o.seed = static_cast<uint64_t>(number());
+    else if (a == "--camera-latency-us") o.camera.latency_us = static_cast<uint32_t>(number());
+    else if (a == "--camera-jitter-us") o.camera.latency_jitter_us = static_cast<uint32_t>(number());
+    else if (a == "--camera-exposure-us") o.camera.exposure_us = static_cast<uint32_t>(number());
+    else if (a == "--camera-miss-every") o.camera.miss_every = static_cast<uint32_t>(number());
+    else if (a == "--usb-frame-us") o.impairment.frame_us = static_cast<uint32_t>(number());
+    else if (a == "--usb-jitter-us") o.impairment.jitter_us = static_cast<uint32_t>(number());
+    else if (a == "--help" || a == "-h") usage("help");
+    else usage(("unknown option " + a).c_str());
+  }
+  if (o.lidar_model != "v3" && o.lidar_model != "v3hp") usage("--lidar-model is v3 or v3hp");
+  return o;
+}
+
+class EventLog {
+ public:
+  explicit EventLog(const std::string& path) {
+    if (!path.empty()) f_ = std::fopen(path.c_str(), "w");
+    if (!path.empty() && f_ == nullptr) {
+      std::fprintf(stderr, "icgt-sim-device: cannot write %s: %s\n", path.c_str(), std::strerror(errno));
+      std::exit(1);
+    }
+  }
+  ~EventLog() {
+    if (f_ != nullptr) std::fclose(f_);
+  }
+  void line(const std::string& json) {
+    if (f_ == nullptr) return;
+    std::fputs(json.c_str(), f_);
+    std::fputc('\n', f_);
+    std::fflush(f_);
+  }
+
+ private:
+  std::FILE* f_ = nullptr;
+};
+
+std::string exposure_json(const icgt::sim::TrueExposure& e) {
+  std::ostringstream s;
+  s << R"({"event":"exposure","frame_number":)" << e.frame_number << R"(,"trigger_index":)" << e.trigger_index
+    << R"(,"trigger_t_us":)" << e.trigger_t_us << R"(,"start_t_us":)" << e.start_t_us << R"(,"end_t_us":)"
+    << e.end_t_us << R"(,"manual":)" << (e.manual ? "true" : "false") << "}";
+  return s.str();
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  using namespace icgt::sim;
+  Options opt = parse(argc, argv);
+  std::signal(SIGINT, on_signal);
+  std::signal(SIGTERM, on_signal);
+  std::signal(SIGPIPE, SIG_IGN);
+
+  TruthTable truth;
+  std::string error;
+  if (opt.truth.empty()) {
+    TruthRow rest;
+    rest.range_cm = 500.0;
+    rest.range_valid = true;
+    truth.set_constant(rest);
+  } else if (!truth.load(opt.truth, error)) {
+    std::fprintf(stderr, "icgt-sim-device: %s\n", error.c_str());
+    return 1;
+  }
+
+  std::unique_ptr<HostPort> port;
+  if (opt.link.rfind("tcp:", 0) == 0) {
+    port = open_tcp_port(static_cast<uint16_t>(std::strtoul(opt.link.c_str() + 4, nullptr, 10)), error);
+  } else if (opt.link == "pty" || opt.link.rfind("pty:", 0) == 0) {
+    port = open_pty_port(opt.link.size() > 4 ? opt.link.substr(4) : std::string(), error);
+  } else {
+    usage("--link is pty, pty:PATH or tcp:PORT");
+  }
+  if (!port) {
+    std::fprintf(stderr, "icgt-sim-device: %s\n", error.c_str());
+    return 1;
+  }
+
+  ClockMap map;
+  map.t0_monotonic_ns = opt.t0_monotonic_ns != 0 ? opt.t0_monotonic_ns : monotonic_ns();
+  map.device_offset_us = opt.device_offset_us;
+  map.device_drift_ppm = opt.device_drift_ppm;
+
+  ImpairedStream link(*port, map, opt.seed);
+  link.set_impairment(opt.impairment);
+
+  SimBoardConfig cfg;
+  cfg.bno_fitted = opt.imu;
+  cfg.bno.seed = opt.seed;
+  cfg.bno.noise.gyro_rad_s = 0.002;
+  cfg.bno.noise.accel_m_s2 = 0.02;
+  cfg.bno.noise.quat = 0.0005;
+  cfg.lidar_fitted = opt.lidar;
+  cfg.lidar.variant = opt.lidar_model == "v3hp" ? LidarLiteVariant::v3hp : LidarLiteVariant::v3;
+  cfg.lidar.noise_sigma_cm = opt.range_noise_cm;
+  cfg.lidar.seed = opt.seed + 1;
+  cfg.device.lidar_model = opt.lidar_model == "v3hp" ? icgt::proto::LidarModel::v3hp : icgt::proto::LidarModel::v3;
+  cfg.feedback_wired = opt.feedback;
+  cfg.device.feedback_enabled = opt.feedback;
+  cfg.camera = opt.camera;
+  cfg.camera.seed = opt.seed + 2;
+  cfg.pps_wired = opt.pps;
+  cfg.rtc_utc_s_at_boot = opt.rtc_utc_s;
+  SimBoard board(cfg, link);
+  link.set_device_clock(board.clock());
+
+  ControlSocket control;
+  if (!opt.control.empty() && !control.open(opt.control, error)) {
+    std::fprintf(stderr, "icgt-sim-device: %s\n", error.c_str());
+    return 1;
+  }
+  EventLog events(opt.events_out);
+
+  std::printf("link: %s\n", port->url().c_str());
+  std::fflush(stdout);
+
+  const auto tau_now = [&] { return map.tau_s_at_monotonic(monotonic_ns()); };
+  board.clock().set_us(map.device_us_at_tau(tau_now()));
+  board.begin();
+
+  std::size_t exposures_emitted = 0;
+  uint64_t replug_at_ns = 0;
+  int64_t next_pps_utc_s = opt.utc0_us / 1'000'000 + 1;
+  const auto handle = [&](const std::string& line) -> std::string {
+    std::istringstream in(line);
+    std::string cmd;
+    in >> cmd;
+    if (cmd == "quit") {
+      g_stop = 1;
+      return "ok";
+    }
+    if (cmd == "manual_shot") {
+      board.camera().manual_shot(board.clock().now_us() + 1000);
+      return "ok";
+    }
+    if (cmd == "disconnect") {
+      double seconds = 0.0;
+      if (!(in >> seconds) || seconds <= 0.0) return "error: disconnect SECONDS";
+      link.unplug();
+      replug_at_ns = monotonic_ns() + static_cast<uint64_t>(seconds * 1e9);
+      events.line(R"({"event":"link","state":"down","tau_s":)" + std::to_string(tau_now()) + "}");
+      return "ok";
+    }
+    if (cmd == "impair") {
+      LinkImpairment imp = link.impairment();
+      std::string kv;
+      while (in >> kv) {
+        const auto eq = kv.find('=');
+        if (eq == std::string::npos) return "error: impair key=value ...";
+        const std::string k = kv.substr(0, eq);
+        const double v = std::strtod(kv.c_str() + eq + 1, nullptr);
+        if (k == "drop") imp.drop_probability = v;
+        else if (k == "flip") imp.flip_probability = v;
+        else if (k == "latency_us") imp.frame_us = static_cast<uint32_t>(v);
+        else if (k == "jitter_us") imp.jitter_us = static_cast<uint32_t>(v);
+        else return "error: unknown impairment " + k;
+      }
+      link.set_impairment(imp);
+      return "ok";
+    }
+    return "error: unknown command " + cmd;
+  };
+
+  while (g_stop == 0) {
+    const uint64_t now_ns = monotonic_ns();
+    const double tau = map.tau_s_at_monotonic(now_ns);
+    const TruthRow r = truth.at(tau);
+    Bno055Truth t;
+    t.quat_wxyz = r.quat_wxyz;
+    t.gyro_rad_s = r.gyro_rad_s;
+    t.accel_m_s2 = r.accel_m_s2;
+    t.lin_accel_m_s2 = r.lin_accel_m_s2;
+    board.bno().set_truth(t);
+    board.lidar().set_range_cm(r.range_cm);
+    board.lidar().set_no_signal(!r.range_valid);
+    if (opt.pps) {
+      const double tau_pps = (static_cast<double>(next_pps_utc_s) * 1e6 - static_cast<double>(opt.utc0_us)) * 1e-6;
+      if (tau_pps < tau + 0.5) {
+        board.pps_pulse(map.device_us_at_tau(tau_pps));
+        ++next_pps_utc_s;
+      }
+    }
+    link.pump(now_ns);
+    board.run_until(map.device_us_at_tau(tau));
+    link.pump(monotonic_ns());
+
+    const auto& ex = board.camera().exposures();
+    for (; exposures_emitted < ex.size(); ++exposures_emitted) events.line(exposure_json(ex[exposures_emitted]));
+    control.poll(handle);
+    if (replug_at_ns != 0 && monotonic_ns() >= replug_at_ns) {
+      link.replug();
+      replug_at_ns = 0;
+      events.line(R"({"event":"link","state":"up","tau_s":)" + std::to_string(tau_now()) + "}");
+    }
+    const timespec nap{0, 50'000};
+    ::nanosleep(&nap, nullptr);
+  }
+  const auto& c = link.counters();
+  std::fprintf(stderr, "icgt-sim-device: stopped; %llu bytes to host, %llu to device, %llu dropped, %llu flipped\n",
+               static_cast<unsigned long long>(c.bytes_to_host), static_cast<unsigned long long>(c.bytes_to_device),
+               static_cast<unsigned long long>(c.dropped), static_cast<unsigned long long>(c.flipped));
+  return 0;
+}

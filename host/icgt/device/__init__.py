@@ -1,0 +1,11 @@
+"""The host's side of the device link: serial connection, handshake, commands, time sync."""
+
+from icgt.device.link import (
+    CommandRefusedError,
+    DeviceLink,
+    DeviceLinkError,
+    LinkEvent,
+    TimeSyncSample,
+)
+
+__all__ = ["CommandRefusedError", "DeviceLink", "DeviceLinkError", "LinkEvent", "TimeSyncSample"]

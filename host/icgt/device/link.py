@@ -1,0 +1,338 @@
+"""The serial link to the ICGT device: open, handshake, read, command, reconnect.
+
+One reader thread owns the port. It stamps every read with the host's monotonic clock the
+moment bytes arrive, decodes frames, answers waiting commands and TIME_SYNC exchanges, and
+hands every message to the recorder's callback. When the port fails (unplugged cable) it
+reports the outage, reopens the same URL until the device is back, and reports how many
+device messages the sequence numbers say were lost in between.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import serial
+
+from icgt.errors import ProtocolError, VersionMismatchError
+from icgt.protocol import PROTOCOL_VERSION, TABLE_HASH, Received, StreamDecoder, encode_frame
+from icgt.protocol.messages import Ack, ErrorCode, Hello, Message, Ping, TimeSync, TimeSyncReply
+
+HANDSHAKE_TIMEOUT_S = 3.0
+COMMAND_TIMEOUT_S = 0.3
+REOPEN_INTERVAL_S = 0.2
+
+
+class DeviceLinkError(ProtocolError):
+    """The device cannot be reached, or did not answer."""
+
+
+class CommandRefusedError(DeviceLinkError):
+    """The device refused a command (NACK) and changed nothing."""
+
+    def __init__(self, command: str, code: int, detail: int) -> None:
+        try:
+            name = ErrorCode(code).name.lower()
+        except ValueError:
+            name = f"error {code}"
+        super().__init__(f"device refused {command}: {name} (detail {detail})")
+        self.command = command
+        self.code = code
+        self.detail = detail
+
+
+@dataclass(frozen=True, slots=True)
+class TimeSyncSample:
+    """One NTP-style exchange: host send/receive [ns, host monotonic], device receive/transmit [us]."""
+
+    host_tx_ns: int
+    device_rx_us: int
+    device_tx_us: int
+    host_rx_ns: int
+
+    @property
+    def round_trip_ns(self) -> int:
+        return (self.host_rx_ns - self.host_tx_ns) - (self.device_tx_us - self.device_rx_us) * 1000
+
+
+@dataclass(frozen=True, slots=True)
+class LinkEvent:
+    """Something about the link itself, for the log: kind is one of
+    'connected', 'disconnected', 'sequence_gap', 'frames_rejected', 'table_hash_mismatch'."""
+
+    kind: str
+    host_ns: int
+    detail: str
+    count: int = 0
+    outage_ns: int = 0
+
+
+MessageCallback = Callable[[Received, int], None]
+EventCallback = Callable[[LinkEvent], None]
+TimeSyncCallback = Callable[[TimeSyncSample], None]
+
+
+@dataclass
+class _Pending:
+    done: threading.Event = field(default_factory=threading.Event)
+    ack: Ack | None = None
+
+
+class DeviceLink:
+    """A connection to one device by URL (`/dev/ttyACM0`, the simulator's pty, `socket://host:port`)."""
+
+    def __init__(
+        self,
+        url: str,
+        *,
+        on_message: MessageCallback,
+        on_event: EventCallback,
+        on_time_sync: TimeSyncCallback,
+        baudrate: int = 115200,
+        reconnect: bool = True,
+    ) -> None:
+        self.url = url
+        self._on_message = on_message
+        self._on_event = on_event
+        self._on_time_sync = on_time_sync
+        self._baudrate = baudrate
+        self._reconnect = reconnect
+        self._port: serial.SerialBase | None = None
+        self._decoder = StreamDecoder()
+        self._tx_lock = threading.Lock()
+        self._seq = 0
+        self._pending: dict[int, _Pending] = {}
+        self._sync_sent: dict[int, int] = {}  # request seq -> host_tx_ns
+        self._hello: Hello | None = None
+        self._hello_event = threading.Event()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._connected = threading.Event()
+        self._down_since_ns = 0
+        self._rejected_reported = 0
+        self.bytes_received = 0
+
+    # ---------------------------------------------------------------- lifecycle
+    def start(self) -> Hello:
+        """Open the port, start the reader and complete the handshake. Returns the device's HELLO.
+
+        Raises VersionMismatchError if the device speaks another protocol version and
+        DeviceLinkError if it cannot be opened or does not answer.
+        """
+        self._port = self._open()
+        self._connected.set()
+        self._thread = threading.Thread(target=self._read_loop, name="icgt-device-reader", daemon=True)
+        self._thread.start()
+        try:
+            return self._handshake()
+        except Exception:
+            self.stop()
+            raise
+
+    def stop(self) -> None:
+        self._stop.set()
+        port = self._port
+        if port is not None:
+            with contextlib.suppress(Exception):
+                port.cancel_read()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+        if port is not None:
+            with contextlib.suppress(Exception):
+                port.close()
+        self._port = None
+
+    @property
+    def hello(self) -> Hello | None:
+        return self._hello
+
+    @property
+    def connected(self) -> bool:
+        return self._connected.is_set()
+
+    @property
+    def decoder_stats(self) -> dict[str, int | None]:
+        return self._decoder.stats.as_dict()
+
+    # ---------------------------------------------------------------- commands
+    def send(self, message: Message, *, pending: _Pending | None = None) -> int:
+        """Frame and send one message; returns its sequence number. Raises DeviceLinkError if the port is down.
+
+        A `pending` is registered under the frame's sequence number before the bytes leave,
+        so its ACK cannot arrive unclaimed.
+        """
+        with self._tx_lock:
+            port = self._port
+            if port is None or not self._connected.is_set():
+                raise DeviceLinkError(f"device link {self.url} is down")
+            seq = self._seq
+            self._seq = (self._seq + 1) & 0xFFFFFFFF
+            if pending is not None:
+                self._pending[seq] = pending
+            if isinstance(message, TimeSync):
+                self._sync_sent[seq] = message.host_t_ns
+            try:
+                port.write(encode_frame(message, seq))
+            except (serial.SerialException, OSError) as exc:
+                self._pending.pop(seq, None)
+                raise DeviceLinkError(f"writing to {self.url}: {exc}") from exc
+        return seq
+
+    def command(self, message: Message, *, timeout_s: float = COMMAND_TIMEOUT_S, retries: int = 3) -> Ack:
+        """Send a command and wait for its ACK, retrying with a new sequence number if none comes.
+
+        Raises CommandRefusedError when the device refuses it. A retried START_CAPTURE that
+        is refused with busy_capturing after an unanswered first attempt counts as accepted:
+        the first attempt reached the device and only its ACK was lost.
+        """
+        last_error: DeviceLinkError | None = None
+        for attempt in range(retries + 1):
+            pending = _Pending()
+            try:
+                seq = self.send(message, pending=pending)
+            except DeviceLinkError as exc:
+                last_error = exc
+                time.sleep(timeout_s)
+                continue
+            answered = pending.done.wait(timeout_s)
+            self._pending.pop(seq, None)
+            if answered:
+                ack = pending.ack
+                assert ack is not None
+                if ack.error_code == ErrorCode.OK:
+                    return ack
+                if attempt > 0 and ack.error_code in (ErrorCode.BUSY_CAPTURING, ErrorCode.NOT_CAPTURING):
+                    return ack
+                raise CommandRefusedError(message.NAME, ack.error_code, ack.detail)
+            last_error = DeviceLinkError(f"no ACK for {message.NAME} within {timeout_s * 1000:.0f} ms")
+        raise last_error or DeviceLinkError(f"{message.NAME} not answered")
+
+    def request_time_sync(self) -> None:
+        """Send one TIME_SYNC; the reply arrives through on_time_sync."""
+        self.send(TimeSync(host_t_ns=time.monotonic_ns()))
+
+    # ---------------------------------------------------------------- internals
+    def _open(self) -> serial.SerialBase:
+        try:
+            port = serial.serial_for_url(self.url, baudrate=self._baudrate, timeout=0.05, write_timeout=0.5)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise DeviceLinkError(f"cannot open device {self.url}: {exc}") from exc
+        return port
+
+    def _handshake(self) -> Hello:
+        deadline = time.monotonic() + HANDSHAKE_TIMEOUT_S
+        asked = False
+        while time.monotonic() < deadline:
+            if self._hello_event.wait(0.3):
+                hello = self._hello
+                assert hello is not None
+                if hello.protocol_version != PROTOCOL_VERSION:
+                    raise VersionMismatchError(hello.protocol_version, PROTOCOL_VERSION)
+                return hello
+            foreign = self._decoder.stats.last_foreign_version
+            if foreign is not None:
+                raise VersionMismatchError(foreign, PROTOCOL_VERSION)
+            if not asked:
+                # The device said HELLO at boot, perhaps long before we opened the port.
+                with contextlib.suppress(DeviceLinkError):
+                    self.send(Ping(nonce=0))
+                asked = True
+        stats = self._decoder.stats
+        raise DeviceLinkError(
+            f"no HELLO from {self.url} within {HANDSHAKE_TIMEOUT_S:.0f} s "
+            f"({self.bytes_received} bytes received, {stats.rejected} frames rejected): is it an ICGT device?"
+        )
+
+    def _read_loop(self) -> None:
+        while not self._stop.is_set():
+            port = self._port
+            if port is None or not self._connected.is_set():
+                self._try_reopen()
+                continue
+            try:
+                data = port.read(1)
+                host_rx_ns = time.monotonic_ns()
+                waiting = port.in_waiting
+                if waiting:
+                    data += port.read(waiting)
+            except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+                self._link_down(str(exc))
+                continue
+            if data:
+                self.bytes_received += len(data)
+                self._feed(data, host_rx_ns)
+
+    def _feed(self, data: bytes, host_rx_ns: int) -> None:
+        stats = self._decoder.stats
+        missed_before = stats.seq_missed
+        for received in self._decoder.feed(data):
+            self._dispatch(received, host_rx_ns)
+        if stats.seq_missed != missed_before:
+            n = stats.seq_missed - missed_before
+            self._on_event(LinkEvent("sequence_gap", host_rx_ns, f"{n} device messages lost", count=n))
+        if stats.rejected != self._rejected_reported:
+            n = stats.rejected - self._rejected_reported
+            self._rejected_reported = stats.rejected
+            self._on_event(LinkEvent("frames_rejected", host_rx_ns, f"{n} corrupt frames skipped", count=n))
+
+    def _dispatch(self, received: Received, host_rx_ns: int) -> None:
+        msg = received.message
+        if isinstance(msg, Ack):
+            pending = self._pending.get(msg.request_seq)
+            if pending is not None:
+                pending.ack = msg
+                pending.done.set()
+        elif isinstance(msg, TimeSyncReply):
+            host_tx_ns = self._sync_sent.pop(msg.request_seq, None)
+            if host_tx_ns is not None and host_tx_ns == msg.host_t_ns:
+                self._on_time_sync(TimeSyncSample(host_tx_ns, msg.device_rx_t_us, msg.device_tx_t_us, host_rx_ns))
+            if len(self._sync_sent) > 64:  # replies lost on the wire: forget the oldest requests
+                for seq in sorted(self._sync_sent)[:32]:
+                    del self._sync_sent[seq]
+        elif isinstance(msg, Hello):
+            self._hello = msg
+            self._hello_event.set()
+            if msg.table_hash != TABLE_HASH and msg.protocol_version == PROTOCOL_VERSION:
+                self._on_event(
+                    LinkEvent(
+                        "table_hash_mismatch",
+                        host_rx_ns,
+                        f"device message table 0x{msg.table_hash:08X}, host 0x{TABLE_HASH:08X}: different builds",
+                    )
+                )
+        self._on_message(received, host_rx_ns)
+
+    def _link_down(self, why: str) -> None:
+        now = time.monotonic_ns()
+        self._connected.clear()
+        self._down_since_ns = now
+        port = self._port
+        with self._tx_lock:
+            self._port = None
+        if port is not None:
+            with contextlib.suppress(Exception):
+                port.close()
+        # A half-received frame must not be glued to the first bytes after the outage.
+        self._decoder.feed(b"\x00")
+        self._on_event(LinkEvent("disconnected", now, f"device link lost: {why}"))
+        if not self._reconnect:
+            self._stop.set()
+
+    def _try_reopen(self) -> None:
+        if self._stop.wait(REOPEN_INTERVAL_S):
+            return
+        try:
+            port = self._open()
+        except DeviceLinkError:
+            return
+        now = time.monotonic_ns()
+        with self._tx_lock:
+            self._port = port
+        self._connected.set()
+        outage = now - self._down_since_ns
+        self._on_event(
+            LinkEvent("connected", now, f"device link back after {outage / 1e9:.2f} s", outage_ns=outage)
+        )

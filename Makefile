@@ -54,7 +54,16 @@ fuzz:
 	cp protocol/vectors/*/*.bin $(FUZZ_BUILD)/corpus/
 	$(FUZZ_BUILD)/fuzz_stream_decoder -runs=200000 -max_len=2048 -seed=1 $(FUZZ_BUILD)/corpus
 
-test: venv build lint fuzz
+# Cortex-M4/M7 builds of the core with flash/RAM budgets, heap and QEMU boot checks; the
+# Teensy board layer against a fake Teensyduino API; no Arduino header outside the board layer.
+.PHONY: firmware-checks
+firmware-checks:
+	firmware/cross/check_no_arduino.sh --self-test
+	firmware/cross/check_no_arduino.sh
+	firmware/cross/build.sh cortex-m4 cortex-m7
+	firmware/cross/check_board_layer.sh
+
+test: venv build lint fuzz firmware-checks
 	ctest --test-dir $(BUILD) --output-on-failure
 	ICGT_BUILD_DIR=$(BUILD) $(VENV)/bin/pytest -q tests
 

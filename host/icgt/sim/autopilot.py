@@ -1,0 +1,638 @@
+"""A simulated autopilot on a real MAVLink link: the scenario's truth as ArduPilot would report it.
+
+`SimAutopilot` is system 1 component 1 (MAV_TYPE_QUADROTOR, MAV_AUTOPILOT_ARDUPILOTMEGA, armed).
+It keeps its own boot clock (truth.ClockMaps: autopilot boot us = offset + tau * 1e6 * (1 + drift))
+and streams, on a companion link and on an optional GCS link:
+
+- HEARTBEAT (1 Hz), SYSTEM_TIME (1 Hz; time_unix_usec 0 until the first GPS fix),
+- GPS_RAW_INT (5 Hz; time_usec = boot time of the measurement; the scenario's noise, fix type,
+  outages with fix_type 1 and garbage lat/lon, nothing (or fix_type 0) while GPS-denied),
+- GLOBAL_POSITION_INT (10 Hz; the fused estimate at time_boot_ms: truth plus small noise, drifting
+  during outages, absent while GPS-denied, lat/lon 0 before the first fix),
+- ATTITUDE, ATTITUDE_QUATERNION, LOCAL_POSITION_NED (10 Hz; local position keeps going without GPS).
+
+Each estimate is stamped on a grid of its stream interval on the boot clock and leaves the
+autopilot `latency_ms` (+- jitter) after its stamp, paced against time.monotonic_ns and the
+contract's t0. It answers TIMESYNC (tc1 = boot time [ns] at microsecond granularity, as ArduPilot;
+ts1 echoed), COMMAND_LONG MAV_CMD_SET_MESSAGE_INTERVAL / GET_MESSAGE_INTERVAL / REQUEST_MESSAGE /
+REQUEST_AUTOPILOT_CAPABILITIES with COMMAND_ACK, and UNSUPPORTED for other commands addressed to
+it. Routing as ArduPilot does between its links: a message not addressed to (1, 1) alone
+(broadcasts, other components such as a camera at (1, 100), other systems) is forwarded unchanged
+to the other link. During the scenario's "autopilot link drops" the companion link sends nothing
+and ignores what arrives (the GCS link is unaffected).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import heapq
+import math
+import select
+import struct
+import threading
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from pymavlink import mavutil
+from pymavlink.dialects.v10 import common as mavlink1_dialect
+from pymavlink.dialects.v20 import common as mavlink2
+
+from icgt.geodesy import LocalFrame, enu_to_ned, q_to_euler_zyx
+from icgt.sim.scenario import STREAM_NAMES, Scenario, SimError
+from icgt.sim.trajectory import Trajectory, TruthState
+from icgt.sim.truth import ClockMaps
+
+SYSTEM_ID = 1
+COMPONENT_ID = 1
+STREAM_IDS: dict[str, int] = {
+    "heartbeat": mavlink2.MAVLINK_MSG_ID_HEARTBEAT,
+    "gps_raw_int": mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT,
+    "global_position_int": mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+    "attitude": mavlink2.MAVLINK_MSG_ID_ATTITUDE,
+    "attitude_quaternion": mavlink2.MAVLINK_MSG_ID_ATTITUDE_QUATERNION,
+    "local_position_ned": mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
+    "system_time": mavlink2.MAVLINK_MSG_ID_SYSTEM_TIME,
+}
+_US_STAMPED = {"gps_raw_int"}  # the others carry time_boot_ms (or no stamp)
+_BASE_MODE = (
+    mavlink2.MAV_MODE_FLAG_SAFETY_ARMED
+    | mavlink2.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+    | mavlink2.MAV_MODE_FLAG_STABILIZE_ENABLED
+    | mavlink2.MAV_MODE_FLAG_GUIDED_ENABLED
+    | mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+)
+_COPTER_MODE_LOITER = 5
+_FLIGHT_SW_VERSION = (4 << 24) | (5 << 16) | (0 << 8) | 255  # 4.5.0 official
+_UINT16_UNKNOWN = 65535
+_SELECT_TIMEOUT_S = 0.02
+_BUILD_LEAD_NS = 10_000_000  # messages are built this long before they are due
+
+
+def gps_condition(scenario: Scenario, tau_s: float) -> str:
+    """GPS state at tau: "denied" (no GPS), "acquiring" (before the first fix), "outage", or "fix"."""
+    g = scenario.gps
+    if any(a <= tau_s < b for a, b in g.denied_s):
+        return "denied"
+    if tau_s < g.fix_acquired_after_s:
+        return "acquiring"
+    if any(a <= tau_s < b for a, b in g.outages_s):
+        return "outage"
+    return "fix"
+
+
+@dataclass
+class _Stream:
+    name: str
+    msg_id: int
+    default_interval_us: int | None
+    interval_us: int | None
+    k: int = 0
+    stamp_us: int = 0
+    send_ns: int = 0
+
+
+def _v1_payload_length(msg_id: int) -> int | None:
+    cls = mavlink1_dialect.mavlink_map.get(msg_id)
+    return None if cls is None else struct.calcsize(bytes(cls.native_format).decode())
+
+
+def _mavlink1_frame(msg: Any, mav: Any) -> bytes:
+    """A MAVLink 1 frame as a MAVLink 1 sender writes it: without the MAVLink 2 extension fields.
+
+    (pymavlink's force_mavlink1 keeps the extensions in the payload; real v1 senders cannot.)
+    """
+    buf = bytes(msg.pack(mav, force_mavlink1=True))
+    length = _v1_payload_length(msg.get_msgId())
+    if length is None or length >= buf[1]:
+        return buf
+    header = bytes([buf[0], length]) + buf[2:6]
+    payload = buf[6 : 6 + length]
+    crc = mavlink2.x25crc(header[1:] + payload)
+    crc.accumulate(bytes([msg.crc_extra]))
+    return header + payload + struct.pack("<H", crc.crc)
+
+
+class _Link:
+    """One MAVLink connection: mavutil for the transport, a MAVLink 2 codec of our own."""
+
+    def __init__(self, url: str, name: str, baud: int) -> None:
+        self.url = url
+        self.name = name
+        try:
+            self.conn: Any = mavutil.mavlink_connection(
+                url, baud=baud, source_system=SYSTEM_ID, source_component=COMPONENT_ID, autoreconnect=False
+            )
+        except (OSError, ValueError) as exc:
+            raise SimError(f"autopilot {name} link {url}: cannot open: {exc}") from exc
+        self.tx = mavlink2.MAVLink(self.conn, srcSystem=SYSTEM_ID, srcComponent=COMPONENT_ID)
+        self.rx = mavlink2.MAVLink(None, srcSystem=SYSTEM_ID, srcComponent=COMPONENT_ID)
+        self.rx.robust_parsing = True
+        self.lock = threading.Lock()
+
+    def fileno(self) -> int | None:
+        fd = getattr(self.conn, "fd", None)
+        return fd if isinstance(fd, int) and fd >= 0 else None
+
+    def local_address(self) -> tuple[str, int] | None:
+        port = getattr(self.conn, "port", None)
+        try:
+            addr = port.getsockname() if port is not None else None
+        except OSError:
+            return None
+        return (str(addr[0]), int(addr[1])) if isinstance(addr, tuple) else None
+
+    def send(self, msg: Any, mavlink1: bool = False) -> None:
+        with self.lock:
+            if not mavlink1:
+                self.tx.send(msg)
+                return
+            self.conn.write(_mavlink1_frame(msg, self.tx))
+            self.tx.seq = (self.tx.seq + 1) % 256
+
+    def forward(self, raw: bytes) -> None:
+        with self.lock:
+            self.conn.write(raw)
+
+    def read(self) -> list[Any]:
+        """Every complete message that has arrived (non-blocking)."""
+        out: list[Any] = []
+        for _ in range(64):
+            try:
+                data = self.conn.recv(4096)
+            except OSError:
+                break
+            if not data:
+                break
+            if isinstance(data, str):
+                data = data.encode("latin-1")
+            msgs = self.rx.parse_buffer(data)
+            if msgs:
+                out.extend(m for m in msgs if m.get_type() != "BAD_DATA")
+        return out
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):
+            self.conn.close()
+
+
+class SimAutopilot:
+    """A simulated ArduPilot-like autopilot; see the module docstring. start() / stop() (or `with`)."""
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        clocks: ClockMaps,
+        companion_url: str,
+        gcs_url: str | None = None,
+        *,
+        trajectory: Trajectory | None = None,
+        latency_ms: float | None = None,
+        latency_jitter_ms: float | None = None,
+        mavlink1_messages: Iterable[str] | None = None,
+        baud: int = 921_600,
+    ) -> None:
+        self.scenario = scenario
+        self.clocks = clocks
+        self.companion_url = companion_url
+        self.gcs_url = gcs_url
+        self.baud = baud
+        self.trajectory = trajectory or Trajectory(scenario)
+        ap = scenario.autopilot
+        self.latency_ns = round((ap.latency_ms if latency_ms is None else latency_ms) * 1e6)
+        self.jitter_ns = round((ap.latency_jitter_ms if latency_jitter_ms is None else latency_jitter_ms) * 1e6)
+        names = ap.mavlink1_messages if mavlink1_messages is None else tuple(mavlink1_messages)
+        self.mavlink1_messages = frozenset(n.upper() for n in names)
+        self.frame = LocalFrame(scenario.origin.lat_deg, scenario.origin.lon_deg, scenario.origin.ellipsoid_height_m)
+        self._codec = mavlink2.MAVLink(None, srcSystem=SYSTEM_ID, srcComponent=COMPONENT_ID)
+        self._streams: dict[int, _Stream] = {}
+        for name in STREAM_NAMES:
+            rate = ap.rates_hz.get(name, 0.0)
+            interval = round(1e6 / rate) if rate > 0.0 else None
+            self._streams[STREAM_IDS[name]] = _Stream(name, STREAM_IDS[name], interval, interval)
+        seed = scenario.seed
+        self._noise = {mid: np.random.default_rng([seed, 0xA9, mid]) for mid in self._streams}
+        self._oneoff_rng = np.random.default_rng([seed, 0xA9, 0])
+        self._jitter_rng = np.random.default_rng([seed, 0xA9, 1])
+        self._outage_dirs = [
+            float(np.random.default_rng([seed, 0xA9, 2, i]).uniform(0.0, 2.0 * math.pi))
+            for i in range(len(scenario.gps.outages_s))
+        ]
+        self._cond = threading.Condition()
+        self._cache_lock = threading.Lock()
+        self._state_cache: dict[int, tuple[float, TruthState]] = {}
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._companion: _Link | None = None
+        self._gcs: _Link | None = None
+        self.sent_counts: dict[str, int] = {}
+        self.forwarded_counts: dict[str, int] = {"to_companion": 0, "to_gcs": 0}
+        self.errors: list[str] = []
+        """Unexpected exceptions caught in the worker threads (empty in a healthy run)."""
+
+    # --- lifecycle ----------------------------------------------------------------------------
+
+    def start(self) -> None:
+        if self._threads:
+            raise SimError("autopilot already started")
+        self._stop.clear()
+        try:
+            self._companion = _Link(self.companion_url, "companion", self.baud)
+            if self.gcs_url is not None:
+                self._gcs = _Link(self.gcs_url, "gcs", self.baud)
+        except SimError:
+            self._close_links()
+            raise
+        now_ap = self._ap_now_us()
+        with self._cond:
+            for s in self._streams.values():
+                self._restart_stream(s, now_ap)
+        self._threads = [
+            threading.Thread(target=self._run_sender, name="sim-autopilot-tx", daemon=True),
+            threading.Thread(target=self._run_receiver, name="sim-autopilot-rx", daemon=True),
+        ]
+        for t in self._threads:
+            t.start()
+
+    def stop(self) -> None:
+        """Stop the threads and close the links; safe to call more than once."""
+        self._stop.set()
+        with self._cond:
+            self._cond.notify_all()
+        for t in self._threads:
+            t.join(timeout=5.0)
+        alive = [t.name for t in self._threads if t.is_alive()]
+        self._threads = []
+        self._close_links()
+        if alive:
+            raise SimError(f"autopilot threads did not stop: {', '.join(alive)}")
+
+    def __enter__(self) -> SimAutopilot:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def _close_links(self) -> None:
+        for link in (self._companion, self._gcs):
+            if link is not None:
+                link.close()
+        self._companion = None
+        self._gcs = None
+
+    @property
+    def companion_address(self) -> tuple[str, int] | None:
+        """Local (host, port) of the companion link's socket, once started."""
+        return self._companion.local_address() if self._companion else None
+
+    @property
+    def gcs_address(self) -> tuple[str, int] | None:
+        """Local (host, port) of the GCS link's socket (e.g. the port udpin:...:0 bound)."""
+        return self._gcs.local_address() if self._gcs else None
+
+    # --- clocks -------------------------------------------------------------------------------
+
+    def _tau_now(self) -> float:
+        return self.clocks.host_ns_to_tau(time.monotonic_ns())
+
+    def _ap_now_us(self) -> int:
+        return math.floor(float(self.clocks.tau_to_autopilot_us(self._tau_now())))
+
+    def _companion_dropped(self, tau_s: float) -> bool:
+        return any(a <= tau_s < b for a, b in self.scenario.faults.autopilot_link_drops_s)
+
+    # --- scheduling ---------------------------------------------------------------------------
+
+    def _stamp(self, s: _Stream) -> int:
+        assert s.interval_us is not None
+        if s.name in _US_STAMPED:
+            return s.k * s.interval_us
+        return (s.k * s.interval_us // 1000) * 1000
+
+    def _schedule(self, s: _Stream) -> None:
+        s.stamp_us = self._stamp(s)
+        tau = float(self.clocks.autopilot_us_to_tau(s.stamp_us))
+        jitter = round(self._jitter_rng.uniform(-1.0, 1.0) * self.jitter_ns) if self.jitter_ns else 0
+        s.send_ns = self.clocks.tau_to_host_ns(tau) + max(0, self.latency_ns + jitter)
+
+    def _restart_stream(self, s: _Stream, now_ap_us: int) -> None:
+        if s.interval_us is None:
+            return
+        s.k = -(-max(0, now_ap_us) // s.interval_us)  # first grid point at or after now (not before boot)
+        self._schedule(s)
+
+    def _run_sender(self) -> None:
+        """Build each message _BUILD_LEAD_NS before it is due (the truth takes a while), send it on time."""
+        pending: list[tuple[int, int, Any]] = []  # heap of (send_ns, sequence, message)
+        sequence = 0
+        while not self._stop.is_set():
+            now = time.monotonic_ns()
+            if pending and pending[0][0] <= now:
+                _, _, msg = heapq.heappop(pending)
+                try:
+                    self._send_stream_message(msg)
+                except Exception as exc:  # a broken link must not stop the other one
+                    self.errors.append(f"send {msg.get_type()}: {exc!r}")
+                continue
+            with self._cond:
+                active = [s for s in self._streams.values() if s.interval_us is not None]
+                nxt = min(active, key=lambda s: s.send_ns) if active else None
+                candidates = [pending[0][0]] if pending else []
+                if nxt is not None:
+                    candidates.append(nxt.send_ns - _BUILD_LEAD_NS)
+                next_ns = min(candidates, default=None)
+                if nxt is None or nxt.send_ns - _BUILD_LEAD_NS > now:
+                    wait_ns = 100_000_000 if next_ns is None else min(100_000_000, next_ns - now)
+                    if wait_ns > 0:
+                        self._cond.wait(timeout=wait_ns * 1e-9)
+                    continue
+                name, stamp_us, send_ns = nxt.name, nxt.stamp_us, nxt.send_ns
+                nxt.k += 1
+                self._schedule(nxt)
+            try:
+                msg = self._build(name, stamp_us, self._noise[STREAM_IDS[name]])
+            except Exception as exc:  # keep streaming; the error is reported in self.errors
+                self.errors.append(f"{name}: {exc!r}")
+                continue
+            if msg is not None:
+                heapq.heappush(pending, (send_ns, sequence, msg))
+                sequence += 1
+
+    def _send_stream_message(self, msg: Any) -> None:
+        """Send a telemetry message on every link (not the companion link while it is dropped)."""
+        mav1 = msg.get_type() in self.mavlink1_messages
+        dropped = self._companion_dropped(self._tau_now())
+        for target in (self._companion, self._gcs):
+            if target is None or (target is self._companion and dropped):
+                continue
+            target.send(msg, mavlink1=mav1)
+        self.sent_counts[msg.get_type()] = self.sent_counts.get(msg.get_type(), 0) + 1
+
+    # --- message content ----------------------------------------------------------------------
+
+    def _state(self, stamp_us: int) -> tuple[float, TruthState]:
+        """Truth at an autopilot stamp; cached because several streams share each stamp."""
+        with self._cache_lock:
+            hit = self._state_cache.get(stamp_us)
+        if hit is not None:
+            return hit
+        tau = float(self.clocks.autopilot_us_to_tau(stamp_us))
+        value = (tau, self.trajectory.state(tau))
+        with self._cache_lock:
+            if len(self._state_cache) >= 64:
+                self._state_cache.clear()
+            self._state_cache[stamp_us] = value
+        return value
+
+    def _outage_error_enu(self, tau: float) -> np.ndarray[Any, np.dtype[np.float64]]:
+        g = self.scenario.gps
+        for (a, b), direction in zip(g.outages_s, self._outage_dirs, strict=True):
+            if a <= tau < b and tau >= g.fix_acquired_after_s:
+                d = g.outage_drift_m_s * (tau - a)
+                return np.array([d * math.sin(direction), d * math.cos(direction), 0.0])
+        return np.zeros(3)
+
+    def _geodetic(self, enu: np.ndarray[Any, np.dtype[np.float64]]) -> tuple[int, int, int, int]:
+        """(lat degE7, lon degE7, alt MSL mm, alt ellipsoid mm)."""
+        lat, lon, h = self.frame.enu_to_geodetic(enu)
+        msl = float(h) - self.scenario.origin.geoid_separation_m
+        return round(float(lat) * 1e7), round(float(lon) * 1e7), round(msl * 1000.0), round(float(h) * 1000.0)
+
+    def _build(self, name: str, stamp_us: int, rng: np.random.Generator) -> Any:
+        builders: dict[str, Callable[[int, np.random.Generator], Any]] = {
+            "heartbeat": self._heartbeat,
+            "gps_raw_int": self._gps_raw_int,
+            "global_position_int": self._global_position_int,
+            "attitude": self._attitude,
+            "attitude_quaternion": self._attitude_quaternion,
+            "local_position_ned": self._local_position_ned,
+            "system_time": self._system_time,
+        }
+        return builders[name](stamp_us, rng)
+
+    def _heartbeat(self, _stamp_us: int, _rng: np.random.Generator) -> Any:
+        return self._codec.heartbeat_encode(
+            mavlink2.MAV_TYPE_QUADROTOR,
+            mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA,
+            _BASE_MODE,
+            _COPTER_MODE_LOITER,
+            mavlink2.MAV_STATE_ACTIVE,
+        )
+
+    def _system_time(self, stamp_us: int, _rng: np.random.Generator) -> Any:
+        tau = float(self.clocks.autopilot_us_to_tau(stamp_us))
+        unix_us = self.clocks.tau_to_utc_us(tau) if tau >= self.scenario.gps.fix_acquired_after_s else 0
+        return self._codec.system_time_encode(unix_us, stamp_us // 1000)
+
+    def _gps_raw_int(self, stamp_us: int, rng: np.random.Generator) -> Any:
+        g = self.scenario.gps
+        tau, st = self._state(stamp_us)
+        cond = gps_condition(self.scenario, tau)
+        noise = rng.normal(size=3)  # drawn every sample so the sequence does not depend on the condition
+        garbage = rng.uniform(-1.0, 1.0, size=2)
+        if cond == "denied":
+            if g.denied_gps_raw == "none":
+                return None
+            return self._codec.gps_raw_int_encode(stamp_us, 0, 0, 0, 0, _UINT16_UNKNOWN, _UINT16_UNKNOWN, 0, 0, 0)
+        if cond == "acquiring":
+            return self._codec.gps_raw_int_encode(stamp_us, 1, 0, 0, 0, _UINT16_UNKNOWN, _UINT16_UNKNOWN, 0, 0, 3)
+        pos = st.position_enu_m[0].copy()
+        if cond == "outage":
+            # receivers in trouble report fix_type 1 with whatever position they last computed
+            pos[:2] += np.sign(garbage) * (100.0 + 1900.0 * np.abs(garbage))  # 0.1 to 2 km off
+            lat, lon, alt, alt_e = self._geodetic(pos)
+            return self._codec.gps_raw_int_encode(
+                stamp_us, 1, lat, lon, alt, _UINT16_UNKNOWN, _UINT16_UNKNOWN, 0, 0, 4, alt_e
+            )
+        pos += noise * np.array([g.noise_horizontal_m, g.noise_horizontal_m, g.noise_vertical_m])
+        lat, lon, alt, alt_e = self._geodetic(pos)
+        v = st.velocity_enu_m_s[0]
+        speed = math.hypot(float(v[0]), float(v[1]))
+        cog = round(math.degrees(math.atan2(float(v[0]), float(v[1]))) % 360.0 * 100.0) % 36000
+        return self._codec.gps_raw_int_encode(
+            stamp_us,
+            g.fix_type,
+            lat,
+            lon,
+            alt,
+            round(g.hdop * 100),
+            round(g.hdop * 150),
+            round(speed * 100.0),
+            cog,
+            g.satellites,
+            alt_e,
+            round(g.noise_horizontal_m * 1000.0),
+            round(g.noise_vertical_m * 1000.0),
+            100,
+            0,
+            0,
+        )
+
+    def _fused_position(self, tau: float, st: TruthState, rng: np.random.Generator) -> Any:
+        g = self.scenario.gps
+        noise = rng.normal(size=3) * np.array(
+            [g.fused_noise_horizontal_m, g.fused_noise_horizontal_m, g.fused_noise_vertical_m]
+        )
+        return st.position_enu_m[0] + noise + self._outage_error_enu(tau)
+
+    def _global_position_int(self, stamp_us: int, rng: np.random.Generator) -> Any:
+        tau, st = self._state(stamp_us)
+        cond = gps_condition(self.scenario, tau)
+        pos = self._fused_position(tau, st, rng)
+        if cond == "denied":
+            return None
+        v_ned = enu_to_ned(st.velocity_enu_m_s[0])
+        _, _, yaw = q_to_euler_zyx(st.q_body_ned[0])
+        hdg = round(math.degrees(float(yaw)) % 360.0 * 100.0) % 36000
+        rel_mm = round(float(pos[2]) * 1000.0)
+        if cond == "acquiring":
+            lat = lon = alt = 0
+        else:
+            lat, lon, alt, _ = self._geodetic(pos)
+        vx, vy, vz = (round(float(c) * 100.0) for c in v_ned)
+        return self._codec.global_position_int_encode(stamp_us // 1000, lat, lon, alt, rel_mm, vx, vy, vz, hdg)
+
+    def _local_position_ned(self, stamp_us: int, rng: np.random.Generator) -> Any:
+        _, st = self._state(stamp_us)
+        g = self.scenario.gps
+        noise = rng.normal(size=3) * np.array(
+            [g.fused_noise_horizontal_m, g.fused_noise_horizontal_m, g.fused_noise_vertical_m]
+        )
+        p = enu_to_ned(st.position_enu_m[0] + noise)
+        v = enu_to_ned(st.velocity_enu_m_s[0])
+        return self._codec.local_position_ned_encode(
+            stamp_us // 1000, float(p[0]), float(p[1]), float(p[2]), float(v[0]), float(v[1]), float(v[2])
+        )
+
+    def _attitude(self, stamp_us: int, _rng: np.random.Generator) -> Any:
+        _, st = self._state(stamp_us)
+        roll, pitch, yaw = q_to_euler_zyx(st.q_body_ned[0])
+        w = st.omega_body_rad_s[0]
+        return self._codec.attitude_encode(
+            stamp_us // 1000, float(roll), float(pitch), float(yaw), float(w[0]), float(w[1]), float(w[2])
+        )
+
+    def _attitude_quaternion(self, stamp_us: int, _rng: np.random.Generator) -> Any:
+        _, st = self._state(stamp_us)
+        q = st.q_body_ned[0]
+        w = st.omega_body_rad_s[0]
+        return self._codec.attitude_quaternion_encode(
+            stamp_us // 1000, float(q[0]), float(q[1]), float(q[2]), float(q[3]), float(w[0]), float(w[1]), float(w[2])
+        )
+
+    def _autopilot_version(self) -> Any:
+        caps = (
+            mavlink2.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+            | mavlink2.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+            | mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+        )
+        return self._codec.autopilot_version_encode(
+            caps, _FLIGHT_SW_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 0x1C67
+        )
+
+    # --- receiving, commands and routing ------------------------------------------------------
+
+    def _run_receiver(self) -> None:
+        while not self._stop.is_set():
+            links = [link for link in (self._companion, self._gcs) if link is not None]
+            fds = [fd for link in links if (fd := link.fileno()) is not None]
+            try:
+                if fds:
+                    select.select(fds, [], [], _SELECT_TIMEOUT_S)
+                else:
+                    time.sleep(_SELECT_TIMEOUT_S)
+            except (OSError, ValueError):
+                time.sleep(_SELECT_TIMEOUT_S)
+            for link in links:
+                try:
+                    for msg in link.read():
+                        self._on_message(link, msg)
+                except Exception as exc:  # keep serving; the error is reported in self.errors
+                    self.errors.append(f"{link.name} receive: {exc!r}")
+
+    def _on_message(self, link: _Link, msg: Any) -> None:
+        if link is self._companion and self._companion_dropped(self._tau_now()):
+            return
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        if src == (SYSTEM_ID, COMPONENT_ID):
+            return  # our own frames echoed back by a loop
+        tgt_sys = int(getattr(msg, "target_system", 0))
+        tgt_comp = int(getattr(msg, "target_component", 0))
+        other = self._gcs if link is self._companion else self._companion
+        addressed_to_me_only = tgt_sys == SYSTEM_ID and tgt_comp == COMPONENT_ID
+        to_companion = other is self._companion
+        if (
+            other is not None
+            and not addressed_to_me_only
+            and not (to_companion and self._companion_dropped(self._tau_now()))
+        ):
+            other.forward(bytes(msg.get_msgbuf()))
+            self.forwarded_counts["to_companion" if to_companion else "to_gcs"] += 1
+        for_me = tgt_sys in (0, SYSTEM_ID) and tgt_comp in (0, COMPONENT_ID)
+        if not for_me:
+            return
+        mtype = msg.get_type()
+        if mtype == "TIMESYNC" and msg.tc1 == 0:
+            link.send(self._codec.timesync_encode(self._ap_now_us() * 1000, msg.ts1))
+        elif mtype == "COMMAND_LONG":
+            self._on_command(link, msg, addressed=tgt_comp == COMPONENT_ID)
+
+    def _ack(self, link: _Link, msg: Any, result: int) -> None:
+        link.send(
+            self._codec.command_ack_encode(msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
+        )
+
+    def _on_command(self, link: _Link, msg: Any, *, addressed: bool) -> None:
+        cmd = int(msg.command)
+        if cmd == mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL:
+            self._ack(link, msg, self._set_interval(int(msg.param1), float(msg.param2)))
+        elif cmd == mavlink2.MAV_CMD_GET_MESSAGE_INTERVAL:
+            mid = int(msg.param1)
+            s = self._streams.get(mid)
+            interval = 0 if s is None else (-1 if s.interval_us is None else s.interval_us)
+            self._ack(link, msg, mavlink2.MAV_RESULT_ACCEPTED)
+            link.send(self._codec.message_interval_encode(mid, interval))
+        elif cmd == mavlink2.MAV_CMD_REQUEST_MESSAGE:
+            self._request_message(link, msg, int(msg.param1))
+        elif cmd == mavlink2.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
+            self._ack(link, msg, mavlink2.MAV_RESULT_ACCEPTED)
+            link.send(self._autopilot_version())
+        elif addressed:
+            self._ack(link, msg, mavlink2.MAV_RESULT_UNSUPPORTED)
+
+    def _set_interval(self, msg_id: int, interval_us: float) -> int:
+        s = self._streams.get(msg_id)
+        if s is None or interval_us < -1 or not math.isfinite(interval_us):
+            return int(mavlink2.MAV_RESULT_DENIED)
+        with self._cond:
+            if interval_us == -1:
+                s.interval_us = None
+            elif interval_us == 0:
+                s.interval_us = s.default_interval_us
+            else:
+                s.interval_us = max(1000, round(interval_us))
+            self._restart_stream(s, self._ap_now_us())
+            self._cond.notify_all()
+        return int(mavlink2.MAV_RESULT_ACCEPTED)
+
+    def _request_message(self, link: _Link, msg: Any, msg_id: int) -> None:
+        if msg_id == mavlink2.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
+            self._ack(link, msg, mavlink2.MAV_RESULT_ACCEPTED)
+            link.send(self._autopilot_version())
+            return
+        s = self._streams.get(msg_id)
+        if s is None:
+            self._ack(link, msg, mavlink2.MAV_RESULT_DENIED)
+            return
+        stamp_us = self._ap_now_us()
+        if s.name not in _US_STAMPED:
+            stamp_us = (stamp_us // 1000) * 1000
+        built = self._build(s.name, stamp_us, self._oneoff_rng)
+        if built is None:  # e.g. GLOBAL_POSITION_INT while GPS-denied
+            self._ack(link, msg, mavlink2.MAV_RESULT_FAILED)
+            return
+        self._ack(link, msg, mavlink2.MAV_RESULT_ACCEPTED)
+        link.send(built, mavlink1=built.get_type() in self.mavlink1_messages)

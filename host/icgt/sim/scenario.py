@@ -1,0 +1,754 @@
+"""Simulation scenarios: what is flown, what is seen, how good GPS is, how wrong the clocks are.
+
+A scenario is a TOML file (hil_sim/scenarios/*.toml) loaded into frozen dataclasses. Every
+field carries its unit in its name. Unknown keys, wrong types and out-of-range values raise
+`ScenarioError` naming the file and the dotted key. Frames: positions are ENU metres relative to
+`[origin]`; body and camera axes are FRD (x forward, y right, z down); the camera's x axis is its
+optical axis, image right is +y and image down is +z.
+
+Example (the shortest valid file; every other section has defaults)::
+
+    name = "hover"
+    duration_s = 30.0
+    [origin]
+    lat_deg = 37.8813
+    lon_deg = 127.7298
+    alt_m = 76.0
+    [structure]
+    point_m = [0.0, 10.0, 0.0]
+    normal = [0.0, -1.0, 0.0]
+    [trajectory]
+    kind = "hover"
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, NoReturn, TypeAlias
+
+from icgt.errors import IcgtError
+
+Vec3: TypeAlias = tuple[float, float, float]
+Window: TypeAlias = tuple[float, float]
+
+SCENARIO_DIR = Path(__file__).resolve().parents[3] / "hil_sim" / "scenarios"
+"""Where the repository keeps its scenario files."""
+
+TRAJECTORY_KINDS = ("pier_scan", "deck_pass", "hover")
+LIDAR_MAX_RANGE_M = {"v3": 40.0, "v3hp": 40.0}
+"""Longest range with a return [m] per LIDAR-Lite model."""
+
+STREAM_NAMES = (
+    "heartbeat",
+    "gps_raw_int",
+    "global_position_int",
+    "attitude",
+    "attitude_quaternion",
+    "local_position_ned",
+    "system_time",
+)
+"""Telemetry streams of the simulated autopilot, by lower-case MAVLink message name."""
+DEFAULT_RATES_HZ: Mapping[str, float] = {
+    "heartbeat": 1.0,
+    "gps_raw_int": 5.0,
+    "global_position_int": 10.0,
+    "attitude": 10.0,
+    "attitude_quaternion": 10.0,
+    "local_position_ned": 10.0,
+    "system_time": 1.0,
+}
+
+
+class SimError(IcgtError):
+    """A problem in the simulator (scenario, truth files, simulated devices)."""
+
+
+class ScenarioError(SimError):
+    """A scenario file that cannot be used; the message names the file and the key."""
+
+
+# --- sections -------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, kw_only=True)
+class Origin:
+    """The ENU origin and home position. Ellipsoidal height = alt_m + geoid_separation_m."""
+
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+    """Height above mean sea level [m] (MAVLink `alt`)."""
+    geoid_separation_m: float = 0.0
+    """Geoid height N above the WGS84 ellipsoid [m] (about +25 m in Korea)."""
+
+    @property
+    def ellipsoid_height_m(self) -> float:
+        return self.alt_m + self.geoid_separation_m
+
+
+@dataclass(frozen=True, kw_only=True)
+class Structure:
+    """The inspected surface: an infinite plane through point_m (ENU) with unit normal `normal`.
+
+    The normal points to the side the drone flies on (out of the concrete).
+    """
+
+    point_m: Vec3
+    normal: Vec3
+
+
+@dataclass(frozen=True, kw_only=True)
+class TrajectoryCommon:
+    start_hold_s: float = 3.0
+    """Hover at the first point for this long before moving."""
+    sway_m: float = 0.0
+    """Amplitude of a smooth wind sway added to the path [m] (0 = none)."""
+    sway_period_s: float = 6.0
+    heading_deg: float | None = None
+    """Body yaw [deg, compass, 0 = north, 90 = east]; None: face the structure (or along the path
+    under a horizontal surface)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class PierScan(TrajectoryCommon):
+    """Vertical passes up and down a pier face at standoff_m, stepping sideways between passes."""
+
+    kind: Literal["pier_scan"] = "pier_scan"
+    standoff_m: float = 2.5
+    speed_m_s: float = 0.8
+    side_overlap: float = 0.6
+    """Overlap of the footprints of adjacent passes (0..1)."""
+    width_m: float = 4.0
+    """Width of the face to cover, centred on the structure point [m]."""
+    bottom_m: float = 1.0
+    top_m: float = 12.0
+    """ENU heights of the camera at the ends of each pass [m]."""
+    ramp_s: float = 1.5
+    """Time to reach (or leave) the pass speed, smooth acceleration [s]."""
+    step_speed_m_s: float = 0.5
+    """Peak speed of the sideways step between passes [m/s]."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class DeckPass(TrajectoryCommon):
+    """A straight pass along a deck at standoff_m from its surface, with smooth accel/decel."""
+
+    kind: Literal["deck_pass"] = "deck_pass"
+    standoff_m: float = 5.0
+    speed_m_s: float = 10.0
+    length_m: float = 160.0
+    """Length of the whole pass (ramps included), centred on the structure point [m]."""
+    ramp_s: float = 4.0
+    along_deg: float = 90.0
+    """Direction of travel [deg, compass]; must lie in the structure plane."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Hover(TrajectoryCommon):
+    """Station keeping at standoff_m in front of the structure point, at height_m (ENU up)."""
+
+    kind: Literal["hover"] = "hover"
+    standoff_m: float = 3.0
+    height_m: float = 5.0
+    lateral_m: float = 0.0
+    """Offset to the right (seen from the drone) of the structure point [m]."""
+
+
+TrajectorySpec: TypeAlias = PierScan | DeckPass | Hover
+
+
+@dataclass(frozen=True, kw_only=True)
+class Capture:
+    """When the camera is triggered. focus_burst: the paper's cycle (focus_ms of half-press, then
+    burst_ms of shots at burst_fps), repeated; interval: one shot every interval_ms."""
+
+    mode: Literal["focus_burst", "interval"] = "focus_burst"
+    start_s: float = 2.0
+    """Scenario time of the "start capture" command [s]."""
+    stop_s: float | None = None
+    """Scenario time of "stop capture" [s]; None = the end of the scenario."""
+    focus_ms: int = 500
+    burst_ms: int = 2000
+    burst_fps: float = 5.0
+    interval_ms: int = 200
+
+    def nominal_trigger_taus_s(self, duration_s: float) -> list[float]:
+        """Scenario times of the trigger pulses this plan asks for (before any shutter lag)."""
+        stop = duration_s if self.stop_s is None else min(self.stop_s, duration_s)
+        out: list[float] = []
+        if self.mode == "interval":
+            n = 0
+            while (t := self.start_s + n * self.interval_ms * 1e-3) < stop - 1e-9:
+                out.append(t)
+                n += 1
+            return out
+        cycle_s = (self.focus_ms + self.burst_ms) * 1e-3
+        per_burst = max(1, math.floor(self.burst_ms * 1e-3 * self.burst_fps + 1e-9))
+        c = 0
+        while (cycle_start := self.start_s + c * cycle_s) < stop - 1e-9:
+            for k in range(per_burst):
+                t = cycle_start + self.focus_ms * 1e-3 + k / self.burst_fps
+                if t < stop - 1e-9:
+                    out.append(t)
+            c += 1
+        return out
+
+
+@dataclass(frozen=True, kw_only=True)
+class Camera:
+    make: str = "SONY"
+    model: str = "ILCE-9"
+    focal_length_mm: float = 35.0
+    sensor_width_mm: float = 35.6
+    sensor_height_mm: float = 23.8
+    image_width_px: int = 6000
+    image_height_px: int = 4000
+    mount_roll_deg: float = 0.0
+    mount_pitch_deg: float = 0.0
+    """Camera relative to the body (stabilised: relative to the level, yawed body) [deg], ZYX."""
+    mount_yaw_deg: float = 0.0
+    stabilised: bool = True
+    """True: a gimbal holds roll and pitch level (only body yaw moves the camera)."""
+    lever_arm_m: Vec3 = (0.25, 0.0, 0.10)
+    """Camera (and LiDAR) position in body FRD axes relative to the autopilot's reference [m]."""
+    exposure_us: int = 1000
+    shutter_latency_us: int = 48_000
+    shutter_jitter_us: int = 2_000
+    first_file_number: int = 1
+    """Number of the first file on the card (DSC00001.JPG for 1)."""
+    capture: Capture = field(default_factory=Capture)
+
+    def footprint_m(self, distance_m: float) -> tuple[float, float]:
+        """(width, height) of the image footprint [m] on a surface square to the optical axis."""
+        return (
+            distance_m * self.sensor_width_mm / self.focal_length_mm,
+            distance_m * self.sensor_height_mm / self.focal_length_mm,
+        )
+
+
+@dataclass(frozen=True, kw_only=True)
+class Sensors:
+    imu_rate_hz: float = 100.0
+    range_rate_hz: float = 100.0
+    lidar_model: Literal["v3", "v3hp"] = "v3"
+    range_noise_cm: float = 2.5
+
+    @property
+    def lidar_max_range_m(self) -> float:
+        return LIDAR_MAX_RANGE_M[self.lidar_model]
+
+
+@dataclass(frozen=True, kw_only=True)
+class Gps:
+    fix_type: int = 3
+    """GPS_RAW_INT fix_type while the fix is good (3 = 3D, 6 = RTK fixed)."""
+    fix_acquired_after_s: float = 0.0
+    """Before this scenario time: fix_type 1, lat/lon 0, SYSTEM_TIME time_unix_usec 0."""
+    noise_horizontal_m: float = 0.8
+    noise_vertical_m: float = 1.5
+    fused_noise_horizontal_m: float = 0.03
+    """Noise of the autopilot's fused estimate (GLOBAL_POSITION_INT, LOCAL_POSITION_NED) [m]."""
+    fused_noise_vertical_m: float = 0.05
+    satellites: int = 14
+    hdop: float = 0.8
+    outages_s: tuple[Window, ...] = ()
+    """[start_s, end_s] windows: GPS_RAW_INT fix_type 1 with garbage non-zero lat/lon."""
+    outage_drift_m_s: float = 0.2
+    """Growth of the fused estimate's error while the GPS has no fix [m/s]."""
+    denied_s: tuple[Window, ...] = ()
+    """[start_s, end_s] windows without GPS: only LOCAL_POSITION_NED (no GLOBAL_POSITION_INT)."""
+    denied_gps_raw: Literal["none", "no_fix"] = "none"
+    """While denied: send no GPS_RAW_INT, or GPS_RAW_INT with fix_type 0 and lat/lon 0."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Autopilot:
+    rates_hz: Mapping[str, float] = field(default_factory=lambda: dict(DEFAULT_RATES_HZ))
+    """Stream rates by lower-case message name (see STREAM_NAMES); 0 disables a stream."""
+    latency_ms: float = 2.0
+    """Time from an estimate's stamp to its message leaving the autopilot [ms]."""
+    latency_jitter_ms: float = 0.5
+    mavlink1_messages: tuple[str, ...] = ()
+    """Upper-case message names sent as MAVLink 1 frames (real logs mix both)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class DeviceClock:
+    offset_us: int = 0
+    """Device clock at scenario time 0 [us]."""
+    drift_ppm: float = 0.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class AutopilotClock:
+    offset_us: int = 0
+    """Autopilot boot time at scenario time 0 [us]."""
+    drift_ppm: float = 0.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class CameraClock:
+    offset_s: float = 0.0
+    """Camera wall clock minus UTC at scenario time 0 [s] (a time zone goes in here too)."""
+    drift_ppm: float = 0.0
+    exif_resolution: Literal["1s", "10ms"] = "1s"
+
+
+@dataclass(frozen=True, kw_only=True)
+class Clocks:
+    device: DeviceClock = field(default_factory=DeviceClock)
+    autopilot: AutopilotClock = field(default_factory=AutopilotClock)
+    camera: CameraClock = field(default_factory=CameraClock)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Link:
+    """Impairments of the USB serial link between the device and the host."""
+
+    usb_latency_us: int = 0
+    usb_jitter_us: int = 0
+    drop_probability: float = 0.0
+    """Per byte."""
+    flip_probability: float = 0.0
+    """Per byte."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Faults:
+    camera_missed_triggers: tuple[int, ...] = ()
+    """1-based trigger indices the camera ignores."""
+    manual_shots_s: tuple[float, ...] = ()
+    """Scenario times of shots fired by hand on the camera."""
+    device_unplugs_s: tuple[Window, ...] = ()
+    """[start_s, duration_s] of USB unplugs."""
+    autopilot_link_drops_s: tuple[Window, ...] = ()
+    """[start_s, end_s] windows where the autopilot's companion link sends and hears nothing."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Scenario:
+    name: str
+    description: str = ""
+    duration_s: float
+    seed: int = 0
+    origin: Origin
+    structure: Structure
+    trajectory: TrajectorySpec
+    camera: Camera = field(default_factory=Camera)
+    sensors: Sensors = field(default_factory=Sensors)
+    gps: Gps = field(default_factory=Gps)
+    autopilot: Autopilot = field(default_factory=Autopilot)
+    clocks: Clocks = field(default_factory=Clocks)
+    link: Link = field(default_factory=Link)
+    faults: Faults = field(default_factory=Faults)
+    source: str = "<memory>"
+    """Where the scenario was read from (for messages)."""
+
+
+# --- loading --------------------------------------------------------------------------------
+
+_MISSING: Any = object()
+
+
+class _Reader:
+    """Typed access to one TOML table, remembering which keys were read so typos are reported."""
+
+    def __init__(self, data: Mapping[str, Any], source: str, prefix: str = "") -> None:
+        self.data = data
+        self.source = source
+        self.prefix = prefix
+        self.used: set[str] = set()
+
+    def fail(self, key: str, message: str) -> NoReturn:
+        raise ScenarioError(f"{self.source}: {self.prefix}{key}: {message}")
+
+    def _get(self, key: str, default: Any) -> Any:
+        self.used.add(key)
+        if key in self.data:
+            return self.data[key]
+        if default is _MISSING:
+            self.fail(key, "missing (required)")
+        return default
+
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def number(
+        self,
+        key: str,
+        default: Any = _MISSING,
+        *,
+        min_value: float | None = None,
+        max_value: float | None = None,
+        positive: bool = False,
+    ) -> float:
+        value = self._get(key, default)
+        return self._check_number(key, value, min_value, max_value, positive)
+
+    def _check_number(
+        self, key: str, value: Any, min_value: float | None, max_value: float | None, positive: bool
+    ) -> float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            self.fail(key, f"expected a number, got {value!r}")
+        v = float(value)
+        if not math.isfinite(v):
+            self.fail(key, f"expected a finite number, got {value!r}")
+        if positive and v <= 0.0:
+            self.fail(key, f"must be > 0, got {value!r}")
+        if min_value is not None and v < min_value:
+            self.fail(key, f"must be >= {min_value:g}, got {value!r}")
+        if max_value is not None and v > max_value:
+            self.fail(key, f"must be <= {max_value:g}, got {value!r}")
+        return v
+
+    def optional_number(self, key: str, **kw: Any) -> float | None:
+        if key not in self.data:
+            self.used.add(key)
+            return None
+        return self.number(key, **kw)
+
+    def integer(
+        self, key: str, default: Any = _MISSING, *, min_value: int | None = None, max_value: int | None = None
+    ) -> int:
+        value = self._get(key, default)
+        if isinstance(value, bool) or not isinstance(value, int):
+            self.fail(key, f"expected an integer, got {value!r}")
+        if min_value is not None and value < min_value:
+            self.fail(key, f"must be >= {min_value}, got {value!r}")
+        if max_value is not None and value > max_value:
+            self.fail(key, f"must be <= {max_value}, got {value!r}")
+        return value
+
+    def string(self, key: str, default: Any = _MISSING, *, choices: Sequence[str] | None = None) -> str:
+        value = self._get(key, default)
+        if not isinstance(value, str):
+            self.fail(key, f"expected a string, got {value!r}")
+        if choices is not None and value not in choices:
+            self.fail(key, f"must be one of {', '.join(repr(c) for c in choices)}, got {value!r}")
+        return value
+
+    def boolean(self, key: str, default: Any = _MISSING) -> bool:
+        value = self._get(key, default)
+        if not isinstance(value, bool):
+            self.fail(key, f"expected true or false, got {value!r}")
+        return value
+
+    def vec3(self, key: str, default: Any = _MISSING) -> Vec3:
+        value = self._get(key, default)
+        if not isinstance(value, list | tuple) or len(value) != 3:
+            self.fail(key, f"expected [x, y, z], got {value!r}")
+        x, y, z = (self._check_number(key, v, None, None, False) for v in value)
+        return (x, y, z)
+
+    def pairs(self, key: str, *, second_after_first: bool) -> tuple[Window, ...]:
+        value = self._get(key, [])
+        if not isinstance(value, list):
+            self.fail(key, f"expected a list of [a, b] pairs, got {value!r}")
+        out: list[Window] = []
+        for i, pair in enumerate(value):
+            if not isinstance(pair, list) or len(pair) != 2:
+                self.fail(f"{key}[{i}]", f"expected [a, b], got {pair!r}")
+            a = self._check_number(f"{key}[{i}]", pair[0], 0.0, None, False)
+            b = self._check_number(f"{key}[{i}]", pair[1], 0.0, None, False)
+            if second_after_first and b <= a:
+                self.fail(f"{key}[{i}]", f"end {b:g} must be after start {a:g}")
+            if not second_after_first and b <= 0.0:
+                self.fail(f"{key}[{i}]", f"duration must be > 0, got {b:g}")
+            out.append((a, b))
+        return tuple(out)
+
+    def numbers(self, key: str, *, min_value: float | None = None) -> tuple[float, ...]:
+        value = self._get(key, [])
+        if not isinstance(value, list):
+            self.fail(key, f"expected a list of numbers, got {value!r}")
+        return tuple(self._check_number(f"{key}[{i}]", v, min_value, None, False) for i, v in enumerate(value))
+
+    def integers(self, key: str, *, min_value: int | None = None) -> tuple[int, ...]:
+        value = self._get(key, [])
+        if not isinstance(value, list):
+            self.fail(key, f"expected a list of integers, got {value!r}")
+        out: list[int] = []
+        for i, v in enumerate(value):
+            if isinstance(v, bool) or not isinstance(v, int):
+                self.fail(f"{key}[{i}]", f"expected an integer, got {v!r}")
+            if min_value is not None and v < min_value:
+                self.fail(f"{key}[{i}]", f"must be >= {min_value}, got {v!r}")
+            out.append(v)
+        return tuple(out)
+
+    def strings(self, key: str) -> tuple[str, ...]:
+        value = self._get(key, [])
+        if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+            self.fail(key, f"expected a list of strings, got {value!r}")
+        return tuple(value)
+
+    def table(self, key: str, *, required: bool = False) -> _Reader:
+        value = self._get(key, _MISSING if required else {})
+        if not isinstance(value, dict):
+            self.fail(key, f"expected a table, got {value!r}")
+        return _Reader(value, self.source, f"{self.prefix}{key}.")
+
+    def finish(self) -> None:
+        unknown = sorted(set(self.data) - self.used)
+        if unknown:
+            self.fail(unknown[0], "unknown key (a typo?)")
+
+
+def _unit(r: _Reader, key: str, v: Vec3) -> Vec3:
+    n = math.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
+    if n < 1e-9:
+        r.fail(key, "must not be the zero vector")
+    return (v[0] / n, v[1] / n, v[2] / n)
+
+
+def _trajectory_common(r: _Reader) -> dict[str, Any]:
+    return {
+        "start_hold_s": r.number("start_hold_s", 3.0, min_value=0.0),
+        "sway_m": r.number("sway_m", 0.0, min_value=0.0, max_value=5.0),
+        "sway_period_s": r.number("sway_period_s", 6.0, positive=True),
+        "heading_deg": r.optional_number("heading_deg", min_value=-360.0, max_value=360.0),
+    }
+
+
+def _read_trajectory(r: _Reader, structure: Structure) -> TrajectorySpec:
+    kind = r.string("kind", choices=TRAJECTORY_KINDS)
+    common = _trajectory_common(r)
+    spec: TrajectorySpec
+    if kind == "pier_scan":
+        bottom = r.number("bottom_m", 1.0)
+        top = r.number("top_m", 12.0)
+        if top <= bottom:
+            r.fail("top_m", f"must be above bottom_m ({bottom:g}), got {top:g}")
+        spec = PierScan(
+            standoff_m=r.number("standoff_m", 2.5, positive=True),
+            speed_m_s=r.number("speed_m_s", 0.8, positive=True, max_value=20.0),
+            side_overlap=r.number("side_overlap", 0.6, min_value=0.0, max_value=0.95),
+            width_m=r.number("width_m", 4.0, min_value=0.0),
+            bottom_m=bottom,
+            top_m=top,
+            ramp_s=r.number("ramp_s", 1.5, positive=True),
+            step_speed_m_s=r.number("step_speed_m_s", 0.5, positive=True),
+            **common,
+        )
+        if abs(structure.normal[2]) > 0.5:
+            r.fail("kind", "a pier scan needs a vertical face: structure.normal must be mostly horizontal")
+    elif kind == "deck_pass":
+        along = r.number("along_deg", 90.0, min_value=-360.0, max_value=360.0)
+        spec = DeckPass(
+            standoff_m=r.number("standoff_m", 5.0, positive=True),
+            speed_m_s=r.number("speed_m_s", 10.0, positive=True, max_value=30.0),
+            length_m=r.number("length_m", 160.0, positive=True),
+            ramp_s=r.number("ramp_s", 4.0, positive=True),
+            along_deg=along,
+            **common,
+        )
+        d = (math.sin(math.radians(along)), math.cos(math.radians(along)), 0.0)
+        dot = sum(a * b for a, b in zip(d, structure.normal, strict=True))
+        if abs(dot) > 1e-3:
+            r.fail("along_deg", f"direction {along:g} deg is not parallel to the structure plane")
+        # the ramps must fit: the pass covers speed * (T - ramp) with T >= 2 ramps
+        if spec.length_m < spec.speed_m_s * spec.ramp_s:
+            r.fail("length_m", f"too short to reach {spec.speed_m_s:g} m/s with ramp_s {spec.ramp_s:g}")
+    else:
+        spec = Hover(
+            standoff_m=r.number("standoff_m", 3.0, positive=True),
+            height_m=r.number("height_m", 5.0),
+            lateral_m=r.number("lateral_m", 0.0),
+            **common,
+        )
+    r.finish()
+    return spec
+
+
+def _read_camera(r: _Reader) -> Camera:
+    c = r.table("capture")
+    capture = Capture(
+        mode=c.string("mode", "focus_burst", choices=("focus_burst", "interval")),  # type: ignore[arg-type]
+        start_s=c.number("start_s", 2.0, min_value=0.0),
+        stop_s=c.optional_number("stop_s", min_value=0.0),
+        focus_ms=c.integer("focus_ms", 500, min_value=0),
+        burst_ms=c.integer("burst_ms", 2000, min_value=1),
+        burst_fps=c.number("burst_fps", 5.0, positive=True, max_value=30.0),
+        interval_ms=c.integer("interval_ms", 200, min_value=1),
+    )
+    if capture.stop_s is not None and capture.stop_s <= capture.start_s:
+        c.fail("stop_s", f"must be after start_s ({capture.start_s:g})")
+    c.finish()
+    cam = Camera(
+        make=r.string("make", "SONY"),
+        model=r.string("model", "ILCE-9"),
+        focal_length_mm=r.number("focal_length_mm", 35.0, positive=True),
+        sensor_width_mm=r.number("sensor_width_mm", 35.6, positive=True),
+        sensor_height_mm=r.number("sensor_height_mm", 23.8, positive=True),
+        image_width_px=r.integer("image_width_px", 6000, min_value=1),
+        image_height_px=r.integer("image_height_px", 4000, min_value=1),
+        mount_roll_deg=r.number("mount_roll_deg", 0.0, min_value=-180.0, max_value=180.0),
+        mount_pitch_deg=r.number("mount_pitch_deg", 0.0, min_value=-90.0, max_value=90.0),
+        mount_yaw_deg=r.number("mount_yaw_deg", 0.0, min_value=-180.0, max_value=180.0),
+        stabilised=r.boolean("stabilised", True),
+        lever_arm_m=r.vec3("lever_arm_m", (0.25, 0.0, 0.10)),
+        exposure_us=r.integer("exposure_us", 1000, min_value=1),
+        shutter_latency_us=r.integer("shutter_latency_us", 48_000, min_value=0),
+        shutter_jitter_us=r.integer("shutter_jitter_us", 2_000, min_value=0),
+        first_file_number=r.integer("first_file_number", 1, min_value=1, max_value=99_999),
+        capture=capture,
+    )
+    r.finish()
+    return cam
+
+
+def _read_gps(r: _Reader) -> Gps:
+    gps = Gps(
+        fix_type=r.integer("fix_type", 3, min_value=2, max_value=6),
+        fix_acquired_after_s=r.number("fix_acquired_after_s", 0.0, min_value=0.0),
+        noise_horizontal_m=r.number("noise_horizontal_m", 0.8, min_value=0.0),
+        noise_vertical_m=r.number("noise_vertical_m", 1.5, min_value=0.0),
+        fused_noise_horizontal_m=r.number("fused_noise_horizontal_m", 0.03, min_value=0.0),
+        fused_noise_vertical_m=r.number("fused_noise_vertical_m", 0.05, min_value=0.0),
+        satellites=r.integer("satellites", 14, min_value=0, max_value=254),
+        hdop=r.number("hdop", 0.8, positive=True),
+        outages_s=r.pairs("outages_s", second_after_first=True),
+        outage_drift_m_s=r.number("outage_drift_m_s", 0.2, min_value=0.0),
+        denied_s=r.pairs("denied_s", second_after_first=True),
+        denied_gps_raw=r.string("denied_gps_raw", "none", choices=("none", "no_fix")),  # type: ignore[arg-type]
+    )
+    r.finish()
+    return gps
+
+
+def _read_autopilot(r: _Reader) -> Autopilot:
+    rt = r.table("rates_hz")
+    rates = dict(DEFAULT_RATES_HZ)
+    for name in STREAM_NAMES:
+        if rt.has(name):
+            rates[name] = rt.number(name, min_value=0.0, max_value=1000.0)
+    rt.finish()
+    names = r.strings("mavlink1_messages")
+    for n in names:
+        if n.lower() not in STREAM_NAMES:
+            r.fail("mavlink1_messages", f"{n!r} is not one of {', '.join(s.upper() for s in STREAM_NAMES)}")
+    ap = Autopilot(
+        rates_hz=rates,
+        latency_ms=r.number("latency_ms", 2.0, min_value=0.0, max_value=1000.0),
+        latency_jitter_ms=r.number("latency_jitter_ms", 0.5, min_value=0.0, max_value=1000.0),
+        mavlink1_messages=tuple(n.upper() for n in names),
+    )
+    r.finish()
+    return ap
+
+
+def _read_clocks(r: _Reader) -> Clocks:
+    d = r.table("device")
+    device = DeviceClock(
+        offset_us=d.integer("offset_us", 0, min_value=0),
+        drift_ppm=d.number("drift_ppm", 0.0, min_value=-500, max_value=500),
+    )
+    d.finish()
+    a = r.table("autopilot")
+    autopilot = AutopilotClock(
+        offset_us=a.integer("offset_us", 0, min_value=0),
+        drift_ppm=a.number("drift_ppm", 0.0, min_value=-500, max_value=500),
+    )
+    a.finish()
+    c = r.table("camera")
+    camera = CameraClock(
+        offset_s=c.number("offset_s", 0.0),
+        drift_ppm=c.number("drift_ppm", 0.0, min_value=-500, max_value=500),
+        exif_resolution=c.string("exif_resolution", "1s", choices=("1s", "10ms")),  # type: ignore[arg-type]
+    )
+    c.finish()
+    r.finish()
+    return Clocks(device=device, autopilot=autopilot, camera=camera)
+
+
+def parse_scenario(data: Mapping[str, Any], source: str = "<memory>") -> Scenario:
+    """Build and validate a Scenario from parsed TOML data; errors name `source` and the key."""
+    r = _Reader(data, source)
+    name = r.string("name")
+    description = r.string("description", "")
+    duration_s = r.number("duration_s", positive=True, max_value=24 * 3600.0)
+    seed = r.integer("seed", 0, min_value=0)
+
+    o = r.table("origin", required=True)
+    origin = Origin(
+        lat_deg=o.number("lat_deg", min_value=-89.0, max_value=89.0),
+        lon_deg=o.number("lon_deg", min_value=-180.0, max_value=180.0),
+        alt_m=o.number("alt_m", min_value=-500.0, max_value=9000.0),
+        geoid_separation_m=o.number("geoid_separation_m", 0.0, min_value=-120.0, max_value=120.0),
+    )
+    o.finish()
+
+    s = r.table("structure", required=True)
+    structure = Structure(point_m=s.vec3("point_m"), normal=_unit(s, "normal", s.vec3("normal")))
+    s.finish()
+
+    trajectory = _read_trajectory(r.table("trajectory", required=True), structure)
+    camera = _read_camera(r.table("camera"))
+
+    se = r.table("sensors")
+    sensors = Sensors(
+        imu_rate_hz=se.number("imu_rate_hz", 100.0, positive=True, max_value=1000.0),
+        range_rate_hz=se.number("range_rate_hz", 100.0, positive=True, max_value=1000.0),
+        lidar_model=se.string("lidar_model", "v3", choices=tuple(LIDAR_MAX_RANGE_M)),  # type: ignore[arg-type]
+        range_noise_cm=se.number("range_noise_cm", 2.5, min_value=0.0),
+    )
+    se.finish()
+
+    gps = _read_gps(r.table("gps"))
+    autopilot = _read_autopilot(r.table("autopilot"))
+    clocks = _read_clocks(r.table("clocks"))
+
+    li = r.table("link")
+    link = Link(
+        usb_latency_us=li.integer("usb_latency_us", 0, min_value=0),
+        usb_jitter_us=li.integer("usb_jitter_us", 0, min_value=0),
+        drop_probability=li.number("drop_probability", 0.0, min_value=0.0, max_value=1.0),
+        flip_probability=li.number("flip_probability", 0.0, min_value=0.0, max_value=1.0),
+    )
+    li.finish()
+
+    f = r.table("faults")
+    faults = Faults(
+        camera_missed_triggers=f.integers("camera_missed_triggers", min_value=1),
+        manual_shots_s=f.numbers("manual_shots_s", min_value=0.0),
+        device_unplugs_s=f.pairs("device_unplugs_s", second_after_first=False),
+        autopilot_link_drops_s=f.pairs("autopilot_link_drops_s", second_after_first=True),
+    )
+    f.finish()
+    r.finish()
+    return Scenario(
+        name=name,
+        description=description,
+        duration_s=duration_s,
+        seed=seed,
+        origin=origin,
+        structure=structure,
+        trajectory=trajectory,
+        camera=camera,
+        sensors=sensors,
+        gps=gps,
+        autopilot=autopilot,
+        clocks=clocks,
+        link=link,
+        faults=faults,
+        source=source,
+    )
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario TOML file. A bare name ("hover") means SCENARIO_DIR/hover.toml."""
+    p = Path(path)
+    if not p.suffix and not p.exists() and p.parent == Path("."):
+        p = SCENARIO_DIR / f"{p.name}.toml"
+    try:
+        with p.open("rb") as f:
+            data = tomllib.load(f)
+    except OSError as exc:
+        raise ScenarioError(f"{p}: cannot read: {exc.strerror}") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{p}: not valid TOML: {exc}") from exc
+    return parse_scenario(data, str(p))

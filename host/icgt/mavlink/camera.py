@@ -1,0 +1,745 @@
+"""The recorder as a MAVLink camera (Camera Protocol v2) that a ground station can drive.
+
+`CameraComponent` runs on a `MavlinkLink` whose source ids are (vehicle system id, 100): it sends
+HEARTBEAT (MAV_TYPE_CAMERA, MAV_AUTOPILOT_INVALID) at 1 Hz, answers the information requests (both
+MAV_CMD_REQUEST_MESSAGE and the older MAV_CMD_REQUEST_CAMERA_INFORMATION / _CAMERA_SETTINGS /
+_STORAGE_INFORMATION / _CAMERA_CAPTURE_STATUS / _CAMERA_IMAGE_CAPTURE that QGroundControl 4.x sends),
+executes IMAGE_START_CAPTURE / IMAGE_STOP_CAPTURE / DO_DIGICAM_CONTROL through the recorder's
+`CaptureHandler`, answers every command it acts on with COMMAND_ACK, reports CAMERA_CAPTURE_STATUS on
+change and at 1 Hz while capturing, and sends CAMERA_IMAGE_CAPTURED for each exposure
+(`publish_image_captured`), keeping a bounded history for re-requests.
+
+Threads: the link's reader only filters and enqueues; one worker thread ("icgt-camera") runs the handler,
+sends the replies and the periodic messages. A slow handler delays only the ACK; a ground station that
+re-sends meanwhile is recognised as a retransmission (see below) and not executed twice.
+
+Who may command it: COMMAND_LONG / COMMAND_INT must target our system (or 0) and our component (or 0,
+broadcast); others are not for us and ignored silently. Commands for us from a system id outside
+``ground_station_systems`` and the autopilot's system are ignored (no ACK) and reported to ``on_rejected``.
+Broadcast commands we do not implement get no ACK (the addressed component answers); targeted ones get
+MAV_RESULT_UNSUPPORTED.
+
+Duplicates: an IMAGE_START_CAPTURE single shot (param3 = 1) with sequence param4 > 0, or a
+DO_DIGICAM_CONTROL with command identity param6 > 0, already executed from the same sender within
+``dedupe_window_s`` is ACKed again with the first result but not executed. So is a retransmission
+(confirmation > 0) of a start/stop/shoot identical to one executed within the window.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import enum
+import logging
+import math
+import queue
+import shutil
+import threading
+import time
+from collections import OrderedDict
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, Protocol
+
+from icgt.errors import IcgtError
+from icgt.mavlink.link import MavlinkLink, Received, Subscription, mavlink2
+
+__all__ = [
+    "CameraComponent",
+    "CameraConfig",
+    "CameraError",
+    "CameraInfo",
+    "CaptureHandler",
+    "CaptureStatus",
+    "CapturedImage",
+    "CommandRecord",
+    "CommandResult",
+    "HandlerResult",
+    "RejectedCommand",
+]
+
+log = logging.getLogger(__name__)
+
+_MIB = 1024 * 1024
+IMAGE_STATUS_IDLE = 0
+IMAGE_STATUS_CAPTURING = 1
+IMAGE_STATUS_INTERVAL_IDLE = 2
+IMAGE_STATUS_INTERVAL_CAPTURING = 3
+
+
+class CameraError(IcgtError):
+    """A camera message cannot be built from the values given (e.g. a latitude out of range)."""
+
+
+class CommandResult(enum.IntEnum):
+    """MAV_RESULT values a handler may return."""
+
+    ACCEPTED = 0
+    TEMPORARILY_REJECTED = 1
+    DENIED = 2
+    UNSUPPORTED = 3
+    FAILED = 4
+    IN_PROGRESS = 5
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class HandlerResult:
+    """A handler's answer with detail: ``reason`` goes to the log, ``progress`` and ``result_param2`` into
+    the COMMAND_ACK (MAVLink uses progress as result_param1 for reasons of a denial)."""
+
+    result: CommandResult
+    reason: str = ""
+    progress: int = 0
+    result_param2: int = 0
+
+
+class CaptureHandler(Protocol):
+    """What the recorder provides. Called on the camera's worker thread; return promptly (< ~1 s)."""
+
+    def start(self, interval_s: float, count: int) -> CommandResult | HandlerResult:
+        """Start interval capture: one exposure every ``interval_s``, ``count`` in total (0 = until stopped)."""
+        ...
+
+    def stop(self) -> CommandResult | HandlerResult:
+        """Stop interval capture."""
+        ...
+
+    def shoot(self) -> CommandResult | HandlerResult:
+        """Take one exposure now."""
+        ...
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class CameraInfo:
+    """What CAMERA_INFORMATION announces. Unknown focal length / sensor size: NaN; resolution: 0."""
+
+    vendor: str = "ICGT"
+    model: str = "ICGT geotagging camera"
+    firmware_version: tuple[int, int, int, int] = (0, 1, 0, 0)  # major, minor, patch, dev
+    focal_length_mm: float = math.nan
+    sensor_size_h_mm: float = math.nan
+    sensor_size_v_mm: float = math.nan
+    resolution_h: int = 0
+    resolution_v: int = 0
+    lens_id: int = 0
+    cam_definition_uri: str = ""
+    cam_definition_version: int = 0
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class CameraConfig:
+    """``output_dir``: where images are stored (STORAGE_INFORMATION reports its file system).
+    ``autopilot_system`` None: the link's autopilot system."""
+
+    output_dir: Path
+    info: CameraInfo = dataclasses.field(default_factory=CameraInfo)
+    ground_station_systems: frozenset[int] = frozenset({255})
+    autopilot_system: int | None = None
+    heartbeat_hz: float = 1.0
+    status_hz: float = 1.0
+    image_history: int = 1000
+    dedupe_window_s: float = 10.0
+    command_queue: int = 256
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class CapturedImage:
+    """One exposure for CAMERA_IMAGE_CAPTURED, in SI units (the component converts to MAVLink's).
+
+    ``time_boot_ms``: use `CameraComponent.time_boot_ms` for the component's own boot clock (what MAVLink
+    specifies). ``time_utc_us``: 0 when unknown. A position or attitude that is None (no 3D fix / unknown)
+    is sent as 0 (lat, lon, alt) and NaN (q); ``capture_result`` stays whatever the exposure was."""
+
+    image_index: int
+    time_boot_ms: int
+    time_utc_us: int
+    lat_deg: float | None
+    lon_deg: float | None
+    alt_msl_m: float | None
+    relative_alt_m: float | None
+    q_wxyz: tuple[float, float, float, float] | None
+    capture_result: bool = True
+    file_url: str = ""
+    camera_id: int = 0
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class RejectedCommand:
+    """A command addressed to us from a system id that may not command the camera."""
+
+    host_ns: int
+    src_system: int
+    src_component: int
+    command: int
+    reason: str
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class CommandRecord:
+    """A command the camera answered, for the log."""
+
+    host_ns: int
+    src_system: int
+    src_component: int
+    command: int
+    params: tuple[float, ...]
+    result: int | None  # MAV_RESULT sent, None when no ACK was sent (unknown broadcast)
+    duplicate: bool
+    reason: str
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class CaptureStatus:
+    image_status: int  # 0 idle, 1 capturing, 2 interval set idle, 3 interval set capturing
+    interval_s: float
+    image_count: int
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class _Command:
+    rx_ns: int
+    src_system: int
+    src_component: int
+    command: int
+    confirmation: int
+    params: tuple[float, float, float, float, float, float, float]
+    broadcast: bool
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class _Outcome:
+    result: int | None
+    progress: int = 0
+    result_param2: int = 0
+    reason: str = ""
+    after: Callable[[], None] | None = None  # runs after the ACK (the requested message follows it)
+
+
+_WAKE = object()
+
+
+def _fixed_bytes(text: str, size: int) -> list[int]:
+    raw = text.encode("utf-8")[:size]
+    return list(raw.ljust(size, b"\0"))
+
+
+def _truncate_utf8(text: str, size: int) -> bytes:
+    return text.encode("utf-8")[:size].decode("utf-8", errors="ignore").encode("utf-8")
+
+
+def _disk_mib(path: Path) -> tuple[float, float, float] | None:
+    """(total, used, free) MiB of the file system holding ``path`` (or its nearest existing parent)."""
+    probe = path
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    try:
+        usage = shutil.disk_usage(probe)
+    except OSError:
+        return None
+    return usage.total / _MIB, usage.used / _MIB, usage.free / _MIB
+
+
+class CameraComponent:
+    """MAVLink Camera Protocol v2 on top of a `MavlinkLink` (which the caller starts and stops)."""
+
+    def __init__(
+        self,
+        link: MavlinkLink,
+        config: CameraConfig,
+        handler: CaptureHandler,
+        *,
+        on_rejected: Callable[[RejectedCommand], None] | None = None,
+        on_command: Callable[[CommandRecord], None] | None = None,
+        clock: Callable[[], int] = time.monotonic_ns,
+    ) -> None:
+        self.link = link
+        self.config = config
+        self.handler = handler
+        self._on_rejected = on_rejected
+        self._on_command = on_command
+        self._clock = clock
+        self._boot_ns = clock()
+        self._system = link.config.system_id
+        self._component = link.config.component_id
+        ap = config.autopilot_system if config.autopilot_system is not None else link.config.effective_autopilot_system
+        self._allowed = frozenset(config.ground_station_systems) | {ap}
+        self._queue: queue.Queue[object] = queue.Queue(maxsize=config.command_queue)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._sub: Subscription | None = None
+        self._lock = threading.Lock()
+        # capture state
+        self._image_status = IMAGE_STATUS_IDLE
+        self._interval_s = 0.0
+        self._count_target = 0
+        self._images_since_start = 0
+        self._image_count = 0
+        self._status_dirty = False
+        self._history: OrderedDict[int, CapturedImage] = OrderedDict()
+        self._recent: OrderedDict[tuple[object, ...], tuple[int, _Outcome]] = OrderedDict()
+        self._dropped_commands = 0
+        self._rejected = 0
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        if self._thread is not None:
+            raise CameraError("camera component already started")
+        self._stop.clear()
+        self._sub = self.link.subscribe(self._on_message, ("COMMAND_LONG", "COMMAND_INT"))
+        self._thread = threading.Thread(target=self._worker, name="icgt-camera", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        if self._sub is not None:
+            self.link.unsubscribe(self._sub)
+            self._sub = None
+        self._stop.set()
+        with contextlib.suppress(queue.Full):
+            self._queue.put_nowait(_WAKE)
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+            self._thread = None
+
+    def __enter__(self) -> CameraComponent:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # ------------------------------------------------------------------ public API
+    def time_boot_ms(self, host_ns: int | None = None) -> int:
+        """The component's boot clock (ms since it was created) at ``host_ns`` (default now), as uint32."""
+        t = self._clock() if host_ns is None else host_ns
+        return max(0, (t - self._boot_ns) // 1_000_000) & 0xFFFFFFFF
+
+    @property
+    def capture_status(self) -> CaptureStatus:
+        with self._lock:
+            return CaptureStatus(self._image_status, self._interval_s, self._image_count)
+
+    @property
+    def counters(self) -> dict[str, int]:
+        with self._lock:
+            return {"dropped_commands": self._dropped_commands, "rejected_commands": self._rejected}
+
+    def set_capturing(self, capturing: bool, interval_s: float = 0.0) -> None:
+        """The recorder reports a capture state change the camera did not cause (e.g. it stopped itself)."""
+        with self._lock:
+            status = IMAGE_STATUS_INTERVAL_CAPTURING if capturing else IMAGE_STATUS_IDLE
+            self._set_status_locked(status, interval_s if capturing else 0.0)
+        self._wake()
+
+    def publish_image_captured(self, image: CapturedImage) -> bool:
+        """Send CAMERA_IMAGE_CAPTURED for one exposure and keep it for re-requests. Thread-safe.
+
+        Raises CameraError for values MAVLink cannot carry. Returns whether it was sent."""
+        msg = self._image_message(image)
+        with self._lock:
+            self._history[image.image_index] = image
+            self._history.move_to_end(image.image_index)
+            while len(self._history) > self.config.image_history:
+                self._history.popitem(last=False)
+            self._image_count += 1
+            if self._image_status == IMAGE_STATUS_INTERVAL_CAPTURING and self._count_target > 0:
+                self._images_since_start += 1
+                if self._images_since_start >= self._count_target:
+                    self._set_status_locked(IMAGE_STATUS_IDLE, 0.0)
+        if self._status_dirty:
+            self._wake()
+        return self.link.send(msg)
+
+    # ------------------------------------------------------------------ reader side (must not block)
+    def _on_message(self, rec: Received) -> None:
+        msg = rec.msg
+        target_sys, target_comp = int(msg.target_system), int(msg.target_component)
+        if target_sys not in (0, self._system) or target_comp not in (0, self._component):
+            return
+        command = int(msg.command)
+        if rec.src_system not in self._allowed:
+            reason = f"system {rec.src_system} is not an allowed ground station or the autopilot"
+            item: object = RejectedCommand(rec.rx_ns, rec.src_system, rec.src_component, command, reason)
+        else:
+            if rec.type == "COMMAND_INT":
+                params = (
+                    float(msg.param1),
+                    float(msg.param2),
+                    float(msg.param3),
+                    float(msg.param4),
+                    float(msg.x),
+                    float(msg.y),
+                    float(msg.z),
+                )
+                confirmation = 0
+            else:
+                params = (
+                    float(msg.param1),
+                    float(msg.param2),
+                    float(msg.param3),
+                    float(msg.param4),
+                    float(msg.param5),
+                    float(msg.param6),
+                    float(msg.param7),
+                )
+                confirmation = int(msg.confirmation)
+            item = _Command(
+                rec.rx_ns, rec.src_system, rec.src_component, command, confirmation, params, target_comp == 0
+            )
+        try:
+            self._queue.put_nowait(item)
+        except queue.Full:
+            with self._lock:
+                self._dropped_commands += 1
+
+    def _wake(self) -> None:
+        with contextlib.suppress(queue.Full):
+            self._queue.put_nowait(_WAKE)
+
+    # ------------------------------------------------------------------ worker thread
+    def _worker(self) -> None:
+        hb_period = int(1e9 / max(self.config.heartbeat_hz, 1e-3))
+        status_period = int(1e9 / max(self.config.status_hz, 1e-3))
+        next_hb = self._clock()
+        next_status = next_hb
+        while not self._stop.is_set():
+            now = self._clock()
+            with self._lock:
+                capturing = self._image_status != IMAGE_STATUS_IDLE
+                dirty = self._status_dirty
+            try:
+                if now >= next_hb:
+                    self._send_heartbeat()
+                    next_hb = now + hb_period
+                if dirty or (capturing and now >= next_status):
+                    self._send_capture_status()
+                    next_status = now + status_period
+            except Exception:
+                log.exception("camera periodic message failed")
+            deadline = min(next_hb, next_status) if capturing else next_hb
+            wait_s = min(max(0.0, (deadline - self._clock()) / 1e9), 0.5)
+            try:
+                item = self._queue.get(timeout=wait_s)
+            except queue.Empty:
+                continue
+            try:
+                if isinstance(item, _Command):
+                    self._execute(item)
+                elif isinstance(item, RejectedCommand):
+                    self._report_rejected(item)
+            except Exception:
+                log.exception("camera command handling failed")
+
+    def _report_rejected(self, rej: RejectedCommand) -> None:
+        with self._lock:
+            self._rejected += 1
+            n = self._rejected
+        if n <= 20 or n % 100 == 0:
+            log.warning(
+                "ignored command %d from %d:%d: %s (rejected #%d)",
+                rej.command,
+                rej.src_system,
+                rej.src_component,
+                rej.reason,
+                n,
+            )
+        if self._on_rejected is not None:
+            try:
+                self._on_rejected(rej)
+            except Exception:
+                log.exception("on_rejected callback raised")
+
+    def _execute(self, cmd: _Command) -> None:
+        now = self._clock()
+        self._expire_recent(now)
+        lookup, record = self._dedupe_keys(cmd)
+        outcome: _Outcome | None = None
+        duplicate = False
+        for key in lookup:
+            hit = self._recent.get(key)
+            if hit is not None:
+                outcome = dataclasses.replace(hit[1], reason="duplicate of " + hit[1].reason)
+                duplicate = True
+                break
+        if outcome is None:
+            outcome = self._dispatch(cmd)
+            if record and outcome.result is not None:
+                expires = now + int(self.config.dedupe_window_s * 1e9)
+                for key in record:
+                    self._recent[key] = (expires, dataclasses.replace(outcome, after=None))
+                while len(self._recent) > 256:
+                    self._recent.popitem(last=False)
+        if outcome.result is not None:
+            self._send_ack(cmd, outcome)
+        if outcome.after is not None:
+            outcome.after()
+        if self._status_dirty:
+            self._send_capture_status()
+        log.info(
+            "command %d from %d:%d params %s -> %s%s %s",
+            cmd.command,
+            cmd.src_system,
+            cmd.src_component,
+            [round(p, 3) for p in cmd.params],
+            outcome.result,
+            " (duplicate, not executed)" if duplicate else "",
+            outcome.reason,
+        )
+        if self._on_command is not None:
+            record_ = CommandRecord(
+                cmd.rx_ns,
+                cmd.src_system,
+                cmd.src_component,
+                cmd.command,
+                cmd.params,
+                outcome.result,
+                duplicate,
+                outcome.reason,
+            )
+            try:
+                self._on_command(record_)
+            except Exception:
+                log.exception("on_command callback raised")
+
+    def _dedupe_keys(self, cmd: _Command) -> tuple[list[tuple[object, ...]], list[tuple[object, ...]]]:
+        """(keys that make this command a duplicate, keys to remember it by once executed)."""
+        if cmd.command not in (
+            mavlink2.MAV_CMD_IMAGE_START_CAPTURE,
+            mavlink2.MAV_CMD_IMAGE_STOP_CAPTURE,
+            mavlink2.MAV_CMD_DO_DIGICAM_CONTROL,
+        ):
+            return [], []
+        p = cmd.params
+        src = (cmd.src_system, cmd.src_component, cmd.command)
+        sequence: list[tuple[object, ...]] = []
+        if cmd.command == mavlink2.MAV_CMD_IMAGE_START_CAPTURE and p[2] == 1 and math.isfinite(p[3]) and p[3] > 0:
+            sequence.append(("sequence", *src, int(p[3])))
+        if cmd.command == mavlink2.MAV_CMD_DO_DIGICAM_CONTROL and math.isfinite(p[5]) and p[5] > 0:
+            sequence.append(("sequence", *src, int(p[5])))
+        retransmission = ("retransmission", *src, p)
+        lookup = [*sequence, retransmission] if cmd.confirmation > 0 else sequence
+        return lookup, [*sequence, retransmission]
+
+    def _expire_recent(self, now: int) -> None:
+        for key in [k for k, (expires, _) in self._recent.items() if expires <= now]:
+            del self._recent[key]
+
+    # ------------------------------------------------------------------ command implementations
+    def _dispatch(self, cmd: _Command) -> _Outcome:
+        c = cmd.command
+        p = cmd.params
+        if c == mavlink2.MAV_CMD_REQUEST_MESSAGE:
+            return self._request_message(cmd, int(p[0]) if math.isfinite(p[0]) else -1, p[1])
+        legacy = {
+            mavlink2.MAV_CMD_REQUEST_CAMERA_INFORMATION: mavlink2.MAVLINK_MSG_ID_CAMERA_INFORMATION,
+            mavlink2.MAV_CMD_REQUEST_CAMERA_SETTINGS: mavlink2.MAVLINK_MSG_ID_CAMERA_SETTINGS,
+            mavlink2.MAV_CMD_REQUEST_STORAGE_INFORMATION: mavlink2.MAVLINK_MSG_ID_STORAGE_INFORMATION,
+            mavlink2.MAV_CMD_REQUEST_CAMERA_CAPTURE_STATUS: mavlink2.MAVLINK_MSG_ID_CAMERA_CAPTURE_STATUS,
+            mavlink2.MAV_CMD_REQUEST_CAMERA_IMAGE_CAPTURE: mavlink2.MAVLINK_MSG_ID_CAMERA_IMAGE_CAPTURED,
+        }
+        if c in legacy:
+            # 525 carries the storage id in param1, 2002 the image index in param1
+            return self._request_message(cmd, legacy[c], p[0])
+        if c == mavlink2.MAV_CMD_IMAGE_START_CAPTURE:
+            return self._start_capture(p)
+        if c == mavlink2.MAV_CMD_IMAGE_STOP_CAPTURE:
+            outcome = self._call("stop", self.handler.stop)
+            if outcome.result == CommandResult.ACCEPTED:
+                with self._lock:
+                    self._set_status_locked(IMAGE_STATUS_IDLE, 0.0)
+            return outcome
+        if c == mavlink2.MAV_CMD_DO_DIGICAM_CONTROL:
+            if p[4] == 1:
+                return self._call("shoot", self.handler.shoot)
+            return _Outcome(int(CommandResult.UNSUPPORTED), reason="DO_DIGICAM_CONTROL without shoot (param5 != 1)")
+        if c == mavlink2.MAV_CMD_SET_CAMERA_MODE:
+            if p[1] == mavlink2.CAMERA_MODE_IMAGE:
+                return _Outcome(int(CommandResult.ACCEPTED), reason="image mode (the only mode)")
+            return _Outcome(int(CommandResult.DENIED), reason="only image mode is supported")
+        if c == mavlink2.MAV_CMD_RESET_CAMERA_SETTINGS:
+            return _Outcome(int(CommandResult.ACCEPTED), reason="no settings to reset")
+        if cmd.broadcast:
+            return _Outcome(None, reason="broadcast command not implemented here")
+        return _Outcome(int(CommandResult.UNSUPPORTED), reason="command not supported by this camera")
+
+    def _start_capture(self, p: tuple[float, ...]) -> _Outcome:
+        target_camera, interval, count_f = p[0], p[1], p[2]
+        if math.isfinite(target_camera) and int(target_camera) not in (0, 1, self._component):
+            return _Outcome(int(CommandResult.DENIED), reason=f"param1 names camera {int(target_camera)}, not this one")
+        if not math.isfinite(count_f) or count_f < 0 or count_f != int(count_f):
+            return _Outcome(int(CommandResult.DENIED), reason=f"invalid image count {count_f}")
+        count = int(count_f)
+        if count == 1:
+            return self._call("shoot", self.handler.shoot)
+        if not math.isfinite(interval) or interval <= 0:
+            return _Outcome(int(CommandResult.DENIED), reason=f"invalid interval {interval} s for {count} images")
+        outcome = self._call(f"start({interval:g} s, {count})", lambda: self.handler.start(interval, count))
+        if outcome.result == CommandResult.ACCEPTED:
+            with self._lock:
+                self._count_target = count
+                self._images_since_start = 0
+                self._set_status_locked(IMAGE_STATUS_INTERVAL_CAPTURING, interval)
+        return outcome
+
+    def _call(self, what: str, fn: Callable[[], CommandResult | HandlerResult]) -> _Outcome:
+        try:
+            answer = fn()
+        except Exception as exc:
+            log.exception("capture handler %s raised", what)
+            return _Outcome(int(CommandResult.FAILED), reason=f"{what} raised {exc!r}")
+        if isinstance(answer, HandlerResult):
+            return _Outcome(int(answer.result), answer.progress, answer.result_param2, f"{what}: {answer.reason}")
+        if isinstance(answer, CommandResult):
+            return _Outcome(int(answer), reason=what)
+        return _Outcome(int(CommandResult.FAILED), reason=f"{what} returned {answer!r}")
+
+    def _request_message(self, cmd: _Command, msg_id: int, arg: float) -> _Outcome:
+        send: Callable[[], None]
+        if msg_id == mavlink2.MAVLINK_MSG_ID_CAMERA_INFORMATION:
+            send = self._send_camera_information
+        elif msg_id == mavlink2.MAVLINK_MSG_ID_CAMERA_SETTINGS:
+            send = self._send_camera_settings
+        elif msg_id == mavlink2.MAVLINK_MSG_ID_STORAGE_INFORMATION:
+            storage = int(arg) if math.isfinite(arg) else -1
+            if storage not in (0, 1):
+                return _Outcome(int(CommandResult.DENIED), reason=f"no storage {storage}")
+            send = self._send_storage_information
+        elif msg_id == mavlink2.MAVLINK_MSG_ID_CAMERA_CAPTURE_STATUS:
+            send = self._send_capture_status
+        elif msg_id == mavlink2.MAVLINK_MSG_ID_CAMERA_IMAGE_CAPTURED:
+            with self._lock:
+                if not math.isfinite(arg):
+                    image = None
+                elif arg < 0:
+                    image = next(reversed(self._history.values()), None)
+                else:
+                    image = self._history.get(int(arg))
+            if image is None:
+                return _Outcome(int(CommandResult.DENIED), reason=f"image {arg:g} not in history")
+            found = image
+
+            def send() -> None:
+                self.link.send(self._image_message(found))
+        else:
+            if cmd.broadcast:
+                return _Outcome(None, reason=f"message {msg_id} not provided here")
+            return _Outcome(int(CommandResult.UNSUPPORTED), reason=f"message {msg_id} not provided")
+        return _Outcome(int(CommandResult.ACCEPTED), reason=f"message {msg_id}", after=send)
+
+    # ------------------------------------------------------------------ messages
+    def _send_ack(self, cmd: _Command, outcome: _Outcome) -> None:
+        assert outcome.result is not None
+        msg = self.link.mav.command_ack_encode(
+            cmd.command,
+            outcome.result,
+            outcome.progress & 0xFF,
+            outcome.result_param2,
+            cmd.src_system,
+            cmd.src_component,
+        )
+        self.link.send(msg)
+
+    def _send_heartbeat(self) -> None:
+        with self._lock:
+            capturing = self._image_status != IMAGE_STATUS_IDLE
+        state = mavlink2.MAV_STATE_ACTIVE if capturing else mavlink2.MAV_STATE_STANDBY
+        msg = self.link.mav.heartbeat_encode(mavlink2.MAV_TYPE_CAMERA, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, state, 3)
+        self.link.send(msg)
+
+    def _send_camera_information(self) -> None:
+        info = self.config.info
+        major, minor, patch, dev = (v & 0xFF for v in info.firmware_version)
+        msg = self.link.mav.camera_information_encode(
+            self.time_boot_ms(),
+            _fixed_bytes(info.vendor, 32),
+            _fixed_bytes(info.model, 32),
+            (dev << 24) | (patch << 16) | (minor << 8) | major,
+            float(info.focal_length_mm),
+            float(info.sensor_size_h_mm),
+            float(info.sensor_size_v_mm),
+            int(info.resolution_h),
+            int(info.resolution_v),
+            int(info.lens_id),
+            mavlink2.CAMERA_CAP_FLAGS_CAPTURE_IMAGE,
+            int(info.cam_definition_version),
+            _truncate_utf8(info.cam_definition_uri, 140),
+        )
+        self.link.send(msg)
+
+    def _send_camera_settings(self) -> None:
+        msg = self.link.mav.camera_settings_encode(self.time_boot_ms(), mavlink2.CAMERA_MODE_IMAGE, math.nan, math.nan)
+        self.link.send(msg)
+
+    def _send_storage_information(self) -> None:
+        disk = _disk_mib(self.config.output_dir)
+        if disk is None:
+            status, total, used, free = mavlink2.STORAGE_STATUS_NOT_SUPPORTED, 0.0, 0.0, 0.0
+        else:
+            status, (total, used, free) = mavlink2.STORAGE_STATUS_READY, disk
+        msg = self.link.mav.storage_information_encode(
+            self.time_boot_ms(),
+            1,
+            1,
+            status,
+            total,
+            used,
+            free,
+            0.0,
+            0.0,
+            mavlink2.STORAGE_TYPE_OTHER,
+            b"ICGT output",
+            mavlink2.STORAGE_USAGE_FLAG_SET | mavlink2.STORAGE_USAGE_FLAG_PHOTO,
+        )
+        self.link.send(msg)
+
+    def _send_capture_status(self) -> None:
+        with self._lock:
+            status, interval, count = self._image_status, self._interval_s, self._image_count
+            self._status_dirty = False
+        disk = _disk_mib(self.config.output_dir)
+        msg = self.link.mav.camera_capture_status_encode(
+            self.time_boot_ms(), status, 0, float(interval), 0, disk[2] if disk else 0.0, count
+        )
+        self.link.send(msg)
+
+    def _set_status_locked(self, status: int, interval_s: float) -> None:
+        if (status, interval_s) != (self._image_status, self._interval_s):
+            self._image_status = status
+            self._interval_s = interval_s
+            self._status_dirty = True
+        if status == IMAGE_STATUS_IDLE:
+            self._count_target = 0
+            self._images_since_start = 0
+
+    def _image_message(self, image: CapturedImage) -> Any:
+        def scaled(value: float | None, scale: float, limit: int, what: str) -> int:
+            if value is None:
+                return 0
+            if not math.isfinite(value):
+                raise CameraError(f"{what} is not finite: {value}")
+            out = round(value * scale)
+            if abs(out) > limit:
+                raise CameraError(f"{what} out of range: {value}")
+            return out
+
+        lat = scaled(image.lat_deg, 1e7, 900_000_000, "latitude")
+        lon = scaled(image.lon_deg, 1e7, 1_800_000_000, "longitude")
+        alt = scaled(image.alt_msl_m, 1e3, 2**31 - 1, "altitude")
+        rel = scaled(image.relative_alt_m, 1e3, 2**31 - 1, "relative altitude")
+        q = [math.nan] * 4 if image.q_wxyz is None else [float(c) for c in image.q_wxyz]
+        if len(q) != 4:
+            raise CameraError("q_wxyz needs 4 components")
+        if not -(2**31) <= image.image_index < 2**31:
+            raise CameraError(f"image index out of range: {image.image_index}")
+        return self.link.mav.camera_image_captured_encode(
+            image.time_boot_ms & 0xFFFFFFFF,
+            max(0, image.time_utc_us),
+            image.camera_id & 0xFF,
+            lat,
+            lon,
+            alt,
+            rel,
+            q,
+            image.image_index,
+            1 if image.capture_result else 0,
+            _truncate_utf8(image.file_url, 205),
+        )

@@ -1,0 +1,865 @@
+"""One MAVLink connection to the autopilot (and, through it or a router, to the ground station).
+
+`MavlinkLink` opens a pymavlink transport from a URL as users write them (``udpin:0.0.0.0:14550``,
+``udpout:192.168.1.10:14550``, ``tcp:127.0.0.1:5760``, ``/dev/ttyAMA0,921600``) and runs two threads:
+
+* the **reader** stamps every received chunk with ``time.monotonic_ns()`` the moment it arrives, parses it
+  with a MAVLink 2 parser (which also accepts MAVLink 1 frames, so mixed v1/v2 input is fine; garbage
+  becomes a counted bad frame, never an exception) and dispatches each message as a `Received` to the
+  subscribers. Subscribers are **callbacks run on the reader thread**: they must return quickly and never
+  block (take a lock briefly at most, or hand the message to your own queue). `subscribe_queue()` gives a
+  bounded `queue.Queue` instead for consumers that want to block on their own thread.
+* the **service** thread tracks the autopilot's liveness (seen / lost after ``link_timeout_s`` without any
+  message / back, each a `LinkEvent` carrying the outage length), runs the TIMESYNC client and requests
+  the telemetry stream rates with MAV_CMD_SET_MESSAGE_INTERVAL (one command at a time, retried until a
+  COMMAND_ACK, bounded) at start, after every outage and after an autopilot reboot.
+
+If a stream transport (serial, TCP) fails, the reader closes it and reopens it every ``reopen_delay_s``
+until it works again or the link is stopped. `send()` may be called from any thread.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import enum
+import logging
+import os
+import queue
+import select
+import socket
+import threading
+import time
+from collections.abc import Callable, Iterable
+from typing import Any, NamedTuple
+
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from icgt.errors import IcgtError
+
+__all__ = [
+    "DEFAULT_STREAM_RATES",
+    "LinkConfig",
+    "LinkError",
+    "LinkEvent",
+    "LinkEventKind",
+    "LinkState",
+    "LinkStats",
+    "MavlinkLink",
+    "RateRequestResult",
+    "Received",
+    "StreamRate",
+    "Subscription",
+    "TimesyncSample",
+    "mavlink2",
+]
+
+log = logging.getLogger(__name__)
+
+MAV_COMP_ID_CAMERA = 100
+_PROTOCOL_MARKER_V1 = 0xFE
+_REBOOT_BACKSTEP_MS = 2000  # a boot stamp going back more than this means the autopilot rebooted
+_BOOT_CLOCK_TYPES = frozenset(
+    {"SYSTEM_TIME", "ATTITUDE", "ATTITUDE_QUATERNION", "GLOBAL_POSITION_INT", "LOCAL_POSITION_NED"}
+)
+
+
+class LinkError(IcgtError):
+    """The MAVLink connection cannot be opened (bad URL, missing device, refused connection)."""
+
+
+class LinkState(enum.Enum):
+    """What the link knows about the autopilot."""
+
+    WAITING = "waiting"  # never heard from it
+    UP = "up"  # messages arriving
+    LOST = "lost"  # nothing for link_timeout_s
+
+
+class LinkEventKind(enum.Enum):
+    AUTOPILOT_SEEN = "autopilot_seen"
+    AUTOPILOT_LOST = "autopilot_lost"
+    AUTOPILOT_BACK = "autopilot_back"
+    AUTOPILOT_REBOOTED = "autopilot_rebooted"
+    TRANSPORT_ERROR = "transport_error"
+    TRANSPORT_REOPENED = "transport_reopened"
+    RATE_REQUEST = "rate_request"
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class LinkEvent:
+    """A change worth a line in the log. ``outage_ns`` is set on AUTOPILOT_BACK (time since the last
+    message before the loss) and AUTOPILOT_LOST (time since the last message, i.e. about the timeout)."""
+
+    kind: LinkEventKind
+    host_ns: int
+    system: int
+    component: int
+    outage_ns: int | None = None
+    detail: str = ""
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class Received:
+    """A message as the reader got it. ``rx_ns`` is time.monotonic_ns() when its last byte arrived."""
+
+    msg: Any
+    rx_ns: int
+
+    @property
+    def type(self) -> str:
+        return str(self.msg.get_type())
+
+    @property
+    def src_system(self) -> int:
+        return int(self.msg.get_srcSystem())
+
+    @property
+    def src_component(self) -> int:
+        return int(self.msg.get_srcComponent())
+
+    @property
+    def msg_id(self) -> int:
+        return int(self.msg.get_msgId())
+
+    @property
+    def mavlink_version(self) -> int:
+        """1 or 2, from the frame's start marker."""
+        buf = self.msg.get_msgbuf()
+        return 1 if buf and buf[0] == _PROTOCOL_MARKER_V1 else 2
+
+
+class TimesyncSample(NamedTuple):
+    """One TIMESYNC round trip: host send time, the autopilot's clock (ns) when it answered, host receipt."""
+
+    host_tx_ns: int
+    autopilot_tc1_ns: int
+    host_rx_ns: int
+
+    @property
+    def rtt_ns(self) -> int:
+        return self.host_rx_ns - self.host_tx_ns
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class StreamRate:
+    """A telemetry stream to ask the autopilot for. ``rate_hz <= 0`` asks it to stop the stream."""
+
+    message_id: int
+    name: str
+    rate_hz: float
+
+    @property
+    def interval_us(self) -> int:
+        return -1 if self.rate_hz <= 0 else round(1e6 / self.rate_hz)
+
+
+DEFAULT_STREAM_RATES: tuple[StreamRate, ...] = (
+    StreamRate(mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, "GLOBAL_POSITION_INT", 50.0),
+    StreamRate(mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT, "GPS_RAW_INT", 10.0),
+    StreamRate(mavlink2.MAVLINK_MSG_ID_ATTITUDE, "ATTITUDE", 50.0),
+    StreamRate(mavlink2.MAVLINK_MSG_ID_ATTITUDE_QUATERNION, "ATTITUDE_QUATERNION", 50.0),
+    StreamRate(mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED, "LOCAL_POSITION_NED", 30.0),
+    StreamRate(mavlink2.MAVLINK_MSG_ID_SYSTEM_TIME, "SYSTEM_TIME", 2.0),
+)
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class LinkConfig:
+    """How to reach the autopilot and who we are on the link.
+
+    ``system_id`` is the vehicle's system id: the camera component shares it (ground stations only list
+    cameras of the vehicle's own system) and it is the autopilot's unless ``autopilot_system`` says
+    otherwise. ``autopilot_component`` None means: learn it from the first HEARTBEAT of that system whose
+    autopilot field is not MAV_AUTOPILOT_INVALID.
+    """
+
+    url: str
+    system_id: int = 1
+    component_id: int = MAV_COMP_ID_CAMERA
+    autopilot_system: int | None = None
+    autopilot_component: int | None = None
+    baud: int = 115200  # serial only, when the URL does not say ("/dev/ttyAMA0,921600" does)
+    link_timeout_s: float = 3.0
+    reopen_delay_s: float = 1.0
+    request_rates: bool = True
+    stream_rates: tuple[StreamRate, ...] = DEFAULT_STREAM_RATES
+    rate_ack_timeout_s: float = 0.5
+    rate_max_attempts: int = 5
+    timesync: bool = True
+    timesync_fast_hz: float = 5.0  # after the autopilot appears (again) ...
+    timesync_fast_count: int = 20  # ... for this many requests, then:
+    timesync_slow_hz: float = 1.0
+    timesync_timeout_s: float = 1.0  # an unanswered request is forgotten after this
+
+    @property
+    def effective_autopilot_system(self) -> int:
+        return self.system_id if self.autopilot_system is None else self.autopilot_system
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class RateRequestResult:
+    """Outcome of one SET_MESSAGE_INTERVAL. ``result`` is the MAV_RESULT, or None when never ACKed."""
+
+    message_id: int
+    name: str
+    rate_hz: float
+    result: int | None
+    attempts: int
+    host_ns: int
+
+    @property
+    def accepted(self) -> bool:
+        return self.result is not None and self.result == int(mavlink2.MAV_RESULT_ACCEPTED)
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class LinkStats:
+    messages_by_type: dict[str, int]
+    bad_frames: int
+    v1_frames: int
+    v2_frames: int
+    bytes_received: int
+    messages_sent: int
+    send_failures: int
+    callback_errors: int
+    queue_drops: int
+    self_echoes: int
+    timesync_sent: int
+    timesync_answered: int
+    timesync_unanswered: int
+    outages: int
+    transport_errors: int
+
+
+class Subscription:
+    """Handle returned by `MavlinkLink.subscribe`; pass it to `unsubscribe`."""
+
+    __slots__ = ("callback", "types")
+
+    def __init__(self, callback: Callable[[Received], object], types: frozenset[str] | None) -> None:
+        self.callback = callback
+        self.types = types
+
+
+@dataclasses.dataclass(slots=True)
+class _RateJob:
+    rate: StreamRate
+    attempts: int = 0
+    deadline_ns: int = 0
+    ack: int | None = None  # MAV_RESULT from the reader thread
+    acked: bool = False
+
+
+def _is_datagram(url: str) -> bool:
+    return url.startswith(("udp:", "udpin:", "udpout:", "udpbcast:", "mcast:"))
+
+
+def _open(config: LinkConfig) -> Any:
+    """Open the pymavlink transport. Serial device paths go straight to mavserial (pymavlink would take a
+    /dev/serial/by-id/...:... path for a UDP address because of its colon)."""
+    url = config.url.strip()
+    if not url:
+        raise LinkError("empty MAVLink URL: use e.g. udpin:0.0.0.0:14550, tcp:host:5760 or /dev/ttyAMA0,921600")
+    try:
+        if url.startswith("/") or url.upper().startswith("COM"):
+            device, _, baud_text = url.partition(",")
+            baud = int(baud_text) if baud_text else config.baud
+            if not os.path.exists(device) and not url.upper().startswith("COM"):
+                raise LinkError(f"serial device {device} does not exist")
+            return mavutil.mavserial(
+                device, baud=baud, source_system=config.system_id, source_component=config.component_id
+            )
+        if not url.startswith(("udp:", "udpin:", "udpout:", "udpbcast:", "tcp:", "tcpin:", "mcast:")):
+            raise LinkError(
+                f"unsupported MAVLink URL {url!r}: use udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, "
+                "tcpin:HOST:PORT or a serial device such as /dev/ttyAMA0,921600"
+            )
+        return mavutil.mavlink_connection(
+            url,
+            baud=config.baud,
+            source_system=config.system_id,
+            source_component=config.component_id,
+            robust_parsing=True,
+            autoreconnect=False,
+            retries=0,
+        )
+    except LinkError:
+        raise
+    except Exception as exc:  # pymavlink raises OSError, ValueError, SerialException, ...
+        raise LinkError(f"cannot open MAVLink link {url!r}: {exc}") from exc
+
+
+class MavlinkLink:
+    """A MAVLink connection with a stamping reader thread, autopilot liveness, TIMESYNC and stream rates.
+
+    ``on_event`` and ``on_timesync`` are called on the link's threads: keep them short and non-blocking.
+    ``clock`` is the host clock (time.monotonic_ns); tests may pass another.
+    """
+
+    def __init__(
+        self,
+        config: LinkConfig,
+        *,
+        on_event: Callable[[LinkEvent], None] | None = None,
+        on_timesync: Callable[[TimesyncSample], None] | None = None,
+        clock: Callable[[], int] = time.monotonic_ns,
+    ) -> None:
+        self.config = config
+        self._on_event = on_event
+        self._on_timesync = on_timesync
+        self._clock = clock
+        self._ap_system = config.effective_autopilot_system
+        self._ap_component: int | None = config.autopilot_component
+        # One MAVLink 2 parser for input (it accepts v1 frames too) and one packer for output, both owned
+        # here rather than by mavutil, whose dialect is a process-wide global switched by environment.
+        self._parser: Any = self._new_parser()
+        self._packer: Any = mavlink2.MAVLink(None, srcSystem=config.system_id, srcComponent=config.component_id)
+        self._conn: Any = None
+        self._datagram = _is_datagram(config.url)
+        self._send_lock = threading.Lock()
+        self._lock = threading.Lock()  # state shared between the reader, service and caller threads
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._subs: tuple[Subscription, ...] = ()
+        # liveness
+        self._state = LinkState.WAITING
+        self._last_ap_rx_ns = 0
+        self._lost_since_ns = 0  # time of the last message before the loss
+        self._last_boot_ms: int | None = None
+        # counters
+        self._by_type: dict[str, int] = {}
+        self._bad_frames = 0
+        self._v1 = 0
+        self._v2 = 0
+        self._bytes = 0
+        self._sent = 0
+        self._send_failures = 0
+        self._callback_errors = 0
+        self._queue_drops = 0
+        self._self_echoes = 0
+        self._ts_sent = 0
+        self._ts_answered = 0
+        self._ts_unanswered = 0
+        self._outages = 0
+        self._transport_errors = 0
+        # timesync client
+        self._ts_pending: dict[int, int] = {}  # ts1 (= host tx ns) -> tx ns
+        self._ts_next_ns = 0
+        self._ts_fast_left = 0
+        # stream rates
+        self._rate_jobs: list[_RateJob] = []
+        self._rate_results: dict[int, RateRequestResult] = {}
+        self._confirmation = 0
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        """Open the transport (raises LinkError if it cannot) and start the reader and service threads."""
+        if self._threads:
+            raise LinkError("link already started")
+        self._conn = _open(self.config)
+        self._stop.clear()
+        self._threads = [
+            threading.Thread(target=self._reader_loop, name="icgt-mavlink-reader", daemon=True),
+            threading.Thread(target=self._service_loop, name="icgt-mavlink-service", daemon=True),
+        ]
+        for thread in self._threads:
+            thread.start()
+        log.info("MAVLink link %s open as %d:%d", self.config.url, self.config.system_id, self.config.component_id)
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        """Stop both threads (joined) and close the transport. Safe to call twice."""
+        self._stop.set()
+        for thread in self._threads:
+            if thread is not threading.current_thread():
+                thread.join(timeout_s)
+        self._threads = []
+        with self._send_lock:
+            self._close_transport()
+
+    def __enter__(self) -> MavlinkLink:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    @property
+    def running(self) -> bool:
+        return bool(self._threads) and not self._stop.is_set()
+
+    # ------------------------------------------------------------------ subscriptions
+    def subscribe(self, callback: Callable[[Received], object], types: Iterable[str] | None = None) -> Subscription:
+        """Call ``callback(received)`` on the reader thread for every message (or those of ``types``).
+
+        The callback must not block; exceptions it raises are counted and logged, never propagated."""
+        sub = Subscription(callback, None if types is None else frozenset(types))
+        with self._lock:
+            self._subs = (*self._subs, sub)
+        return sub
+
+    def unsubscribe(self, sub: Subscription) -> None:
+        with self._lock:
+            self._subs = tuple(s for s in self._subs if s is not sub)
+
+    def subscribe_queue(self, types: Iterable[str] | None = None, maxsize: int = 1000) -> queue.Queue[Received]:
+        """A bounded queue fed by the reader; when full the oldest entry is dropped (counted in stats)."""
+        q: queue.Queue[Received] = queue.Queue(maxsize=maxsize)
+
+        def put(item: Received) -> None:
+            while True:
+                try:
+                    q.put_nowait(item)
+                    return
+                except queue.Full:
+                    with contextlib.suppress(queue.Empty):
+                        q.get_nowait()
+                    with self._lock:
+                        self._queue_drops += 1
+
+        self.subscribe(put, types)
+        return q
+
+    # ------------------------------------------------------------------ sending
+    @property
+    def mav(self) -> Any:
+        """The pymavlink MAVLink 2 object: use its ``*_encode`` methods to build messages for `send`."""
+        return self._packer
+
+    def send(self, msg: Any, *, force_mavlink1: bool = False) -> bool:
+        """Pack ``msg`` with our system/component id and write it. Thread-safe. False if not sent."""
+        with self._send_lock:
+            conn = self._conn
+            if conn is None:
+                self._send_failures += 1
+                return False
+            try:
+                buf = msg.pack(self._packer, force_mavlink1=force_mavlink1)
+                self._packer.seq = (self._packer.seq + 1) % 256
+                conn.write(buf)
+            except Exception as exc:
+                self._send_failures += 1
+                log.warning("MAVLink send of %s failed: %s", msg.get_type(), exc)
+                return False
+            self._sent += 1
+            return True
+
+    def send_command_long(
+        self,
+        target_system: int,
+        target_component: int,
+        command: int,
+        params: Iterable[float] = (),
+        confirmation: int = 0,
+    ) -> bool:
+        p = [*(float(x) for x in params), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0][:7]
+        msg = self._packer.command_long_encode(target_system, target_component, command, confirmation, *p)
+        return self.send(msg)
+
+    # ------------------------------------------------------------------ state
+    @property
+    def state(self) -> LinkState:
+        with self._lock:
+            return self._state
+
+    @property
+    def autopilot(self) -> tuple[int, int] | None:
+        """(system, component) of the autopilot once known."""
+        with self._lock:
+            return None if self._ap_component is None else (self._ap_system, self._ap_component)
+
+    def rate_results(self) -> list[RateRequestResult]:
+        """The latest result per requested message id."""
+        with self._lock:
+            return list(self._rate_results.values())
+
+    def request_rates(self) -> None:
+        """(Re)send the configured SET_MESSAGE_INTERVAL commands now (normally automatic)."""
+        with self._lock:
+            self._schedule_rates_locked()
+
+    def stats(self) -> LinkStats:
+        with self._lock:
+            return LinkStats(
+                messages_by_type=dict(self._by_type),
+                bad_frames=self._bad_frames,
+                v1_frames=self._v1,
+                v2_frames=self._v2,
+                bytes_received=self._bytes,
+                messages_sent=self._sent,
+                send_failures=self._send_failures,
+                callback_errors=self._callback_errors,
+                queue_drops=self._queue_drops,
+                self_echoes=self._self_echoes,
+                timesync_sent=self._ts_sent,
+                timesync_answered=self._ts_answered,
+                timesync_unanswered=self._ts_unanswered,
+                outages=self._outages,
+                transport_errors=self._transport_errors,
+            )
+
+    # ------------------------------------------------------------------ reader thread
+    def _reader_loop(self) -> None:
+        while not self._stop.is_set():
+            conn = self._conn
+            if conn is None:
+                self._reopen()
+                continue
+            try:
+                self._read_once(conn)
+            except Exception as exc:
+                self._transport_failed(exc)
+
+    def _read_once(self, conn: Any) -> None:
+        fd = conn.fd
+        if fd is None:
+            ready = bool(conn.select(0.05))
+        else:
+            try:
+                ready = bool(select.select([fd], [], [], 0.05)[0])
+            except (OSError, ValueError) as exc:
+                raise OSError(f"select failed: {exc}") from exc
+        if not ready:
+            return
+        if self._datagram:
+            for _ in range(256):  # drain the socket, stamping each datagram
+                data = conn.recv()
+                rx_ns = self._clock()
+                if not data:
+                    return
+                self._feed(bytes(data) if not isinstance(data, bytes) else data, rx_ns)
+        elif isinstance(conn, mavutil.mavtcpin):
+            had_client = conn.port is not None
+            data = conn.recv(4096)  # accepts a client when there is none
+            rx_ns = self._clock()
+            if data:
+                self._feed(data if isinstance(data, bytes) else bytes(data), rx_ns)
+            elif had_client:  # the client went away: listen for the next one
+                with self._send_lock:
+                    with contextlib.suppress(Exception):
+                        conn.port.close()
+                    conn.port = None
+                    conn.fd = conn.listen.fileno()
+        else:
+            port = getattr(conn, "port", None)
+            if isinstance(port, socket.socket):  # TCP: read the socket itself (mavtcp prints and reconnects)
+                try:
+                    data = port.recv(4096)
+                except (BlockingIOError, InterruptedError):
+                    return
+            else:
+                data = conn.recv(4096)
+            rx_ns = self._clock()
+            if not data:
+                raise OSError("end of stream (peer closed the connection)")
+            self._feed(data if isinstance(data, bytes) else bytes(data), rx_ns)
+
+    def _new_parser(self) -> Any:
+        parser = mavlink2.MAVLink(None, srcSystem=self.config.system_id, srcComponent=self.config.component_id)
+        parser.robust_parsing = True
+        return parser
+
+    def _feed(self, data: bytes, rx_ns: int) -> None:
+        truncated = False
+        try:
+            msgs = self._parser.parse_buffer(data) or []
+            if self._datagram and self._parser.buf_len() > 0:
+                # A frame cut off at the end of a datagram is never completed by the next datagram:
+                # drop it rather than let it swallow the start of the next one.
+                truncated = True
+                self._parser = self._new_parser()
+        except Exception as exc:  # robust parsing should not raise; count it if it ever does
+            log.debug("MAVLink parser raised %s", exc)
+            self._parser = self._new_parser()
+            msgs, truncated = [], True
+        with self._lock:
+            self._bytes += len(data)
+            self._bad_frames += int(truncated)
+        for msg in msgs:
+            self._handle(Received(msg, rx_ns))
+
+    def _handle(self, rec: Received) -> None:
+        msg = rec.msg
+        mtype = rec.type
+        if mtype == "BAD_DATA":
+            with self._lock:
+                self._bad_frames += 1
+            return
+        src = (rec.src_system, rec.src_component)
+        if src == (self.config.system_id, self.config.component_id):
+            with self._lock:
+                self._self_echoes += 1
+            return
+        events: list[LinkEvent] = []
+        timesync: TimesyncSample | None = None
+        with self._lock:
+            self._by_type[mtype] = self._by_type.get(mtype, 0) + 1
+            if rec.mavlink_version == 1:
+                self._v1 += 1
+            else:
+                self._v2 += 1
+            if src[0] == self._ap_system:
+                if self._ap_component is None and mtype == "HEARTBEAT" and self._is_autopilot_heartbeat(msg):
+                    self._ap_component = src[1]
+                if src[1] == self._ap_component and self._ap_component is not None:
+                    events.extend(self._autopilot_message_locked(rec, mtype))
+                    if mtype == "TIMESYNC":
+                        timesync = self._timesync_reply_locked(msg, rec.rx_ns)
+                    elif mtype == "COMMAND_ACK":
+                        self._command_ack_locked(msg)
+            subs = self._subs
+        for event in events:
+            level = logging.WARNING if event.kind is LinkEventKind.AUTOPILOT_REBOOTED else logging.INFO
+            self._emit(event, level)
+        if timesync is not None and self._on_timesync is not None:
+            try:
+                self._on_timesync(timesync)
+            except Exception:
+                self._count_callback_error("timesync callback")
+        for sub in subs:
+            if sub.types is None or mtype in sub.types:
+                try:
+                    sub.callback(rec)
+                except Exception:
+                    self._count_callback_error(f"subscriber {sub.callback!r} on {mtype}")
+
+    @staticmethod
+    def _is_autopilot_heartbeat(msg: Any) -> bool:
+        return int(msg.autopilot) != mavlink2.MAV_AUTOPILOT_INVALID and int(msg.type) not in (
+            mavlink2.MAV_TYPE_GCS,
+            mavlink2.MAV_TYPE_CAMERA,
+            mavlink2.MAV_TYPE_GIMBAL,
+            mavlink2.MAV_TYPE_ONBOARD_CONTROLLER,
+        )
+
+    def _autopilot_message_locked(self, rec: Received, mtype: str) -> list[LinkEvent]:
+        events: list[LinkEvent] = []
+        now = rec.rx_ns
+        sysid, compid = rec.src_system, rec.src_component
+        if self._state is LinkState.WAITING:
+            self._state = LinkState.UP
+            events.append(LinkEvent(LinkEventKind.AUTOPILOT_SEEN, now, sysid, compid, detail=f"first {mtype}"))
+            self._autopilot_fresh_locked(now)
+        elif self._state is LinkState.LOST:
+            self._state = LinkState.UP
+            outage = now - self._lost_since_ns
+            events.append(
+                LinkEvent(LinkEventKind.AUTOPILOT_BACK, now, sysid, compid, outage, f"back after {outage / 1e9:.3f} s")
+            )
+            self._autopilot_fresh_locked(now)
+        self._last_ap_rx_ns = now
+        boot_ms = getattr(rec.msg, "time_boot_ms", None) if mtype in _BOOT_CLOCK_TYPES else None
+        if isinstance(boot_ms, int):
+            last = self._last_boot_ms
+            self._last_boot_ms = boot_ms
+            if last is not None and boot_ms + _REBOOT_BACKSTEP_MS < last:
+                events.append(
+                    LinkEvent(
+                        LinkEventKind.AUTOPILOT_REBOOTED,
+                        now,
+                        sysid,
+                        compid,
+                        detail=f"{mtype}.time_boot_ms went from {last} to {boot_ms}",
+                    )
+                )
+                self._autopilot_fresh_locked(now)
+        return events
+
+    def _autopilot_fresh_locked(self, now: int) -> None:
+        """The autopilot appeared, came back or rebooted: streams may be at defaults, clocks may differ."""
+        self._schedule_rates_locked()
+        self._ts_pending.clear()
+        self._ts_fast_left = self.config.timesync_fast_count
+        self._ts_next_ns = now
+
+    def _timesync_reply_locked(self, msg: Any, rx_ns: int) -> TimesyncSample | None:
+        tc1, ts1 = int(msg.tc1), int(msg.ts1)
+        if tc1 == 0:
+            return None  # a request from the autopilot, not an answer to ours
+        tx_ns = self._ts_pending.pop(ts1, None)
+        if tx_ns is None:
+            return None  # an answer to someone else's request, or too late
+        self._ts_answered += 1
+        return TimesyncSample(tx_ns, tc1, rx_ns)
+
+    def _command_ack_locked(self, msg: Any) -> None:
+        if int(msg.command) != mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL or not self._rate_jobs:
+            return
+        target_sys = int(getattr(msg, "target_system", 0))
+        target_comp = int(getattr(msg, "target_component", 0))
+        if (target_sys, target_comp) != (0, 0) and (target_sys, target_comp) != (
+            self.config.system_id,
+            self.config.component_id,
+        ):
+            return  # the answer to another component's request
+        job = self._rate_jobs[0]
+        if job.attempts == 0:
+            return  # not sent yet: a stale ACK
+        result = int(msg.result)
+        if result == mavlink2.MAV_RESULT_IN_PROGRESS:
+            job.deadline_ns = self._clock() + int(self.config.rate_ack_timeout_s * 1e9)
+            return
+        job.ack = result
+        job.acked = True
+
+    def _count_callback_error(self, what: str) -> None:
+        with self._lock:
+            self._callback_errors += 1
+            n = self._callback_errors
+        if n <= 10 or n % 1000 == 0:
+            log.exception("%s raised (error #%d)", what, n)
+
+    def _emit(self, event: LinkEvent, level: int = logging.INFO) -> None:
+        log.log(level, "MAVLink %s %d:%d %s", event.kind.value, event.system, event.component, event.detail)
+        if self._on_event is not None:
+            try:
+                self._on_event(event)
+            except Exception:
+                self._count_callback_error("event callback")
+
+    # ------------------------------------------------------------------ transport failures
+    def _close_transport(self) -> None:
+        conn, self._conn = self._conn, None
+        if conn is not None:
+            with contextlib.suppress(Exception):
+                conn.close()
+
+    def _transport_failed(self, exc: BaseException) -> None:
+        with self._send_lock:
+            self._close_transport()
+        with self._lock:
+            self._transport_errors += 1
+        self._parser = self._new_parser()
+        event = LinkEvent(
+            LinkEventKind.TRANSPORT_ERROR,
+            self._clock(),
+            self.config.system_id,
+            self.config.component_id,
+            detail=str(exc),
+        )
+        self._emit(event, logging.WARNING)
+
+    def _reopen(self) -> None:
+        if self._stop.wait(self.config.reopen_delay_s):
+            return
+        try:
+            conn = _open(self.config)
+        except LinkError as exc:
+            log.debug("reopen of %s failed: %s", self.config.url, exc)
+            return
+        with self._send_lock:
+            if self._stop.is_set():
+                with contextlib.suppress(Exception):
+                    conn.close()
+                return
+            self._conn = conn
+        cfg = self.config
+        self._emit(
+            LinkEvent(LinkEventKind.TRANSPORT_REOPENED, self._clock(), cfg.system_id, cfg.component_id, detail=cfg.url)
+        )
+
+    # ------------------------------------------------------------------ service thread
+    def _service_loop(self) -> None:
+        while not self._stop.wait(0.01):
+            try:
+                self._service_once(self._clock())
+            except Exception:
+                log.exception("MAVLink service step failed")
+
+    def _service_once(self, now: int) -> None:
+        events: list[tuple[LinkEvent, int]] = []
+        send_timesync = False
+        rate_to_send: StreamRate | None = None
+        confirmation = 0
+        with self._lock:
+            # liveness
+            if self._state is LinkState.UP and now - self._last_ap_rx_ns > int(self.config.link_timeout_s * 1e9):
+                self._state = LinkState.LOST
+                self._lost_since_ns = self._last_ap_rx_ns
+                self._outages += 1
+                self._rate_jobs.clear()
+                silent = now - self._last_ap_rx_ns
+                lost = LinkEvent(
+                    LinkEventKind.AUTOPILOT_LOST,
+                    now,
+                    self._ap_system,
+                    self._ap_component or 0,
+                    silent,
+                    f"no message for {silent / 1e9:.3f} s",
+                )
+                events.append((lost, logging.WARNING))
+            # timesync client
+            if self.config.timesync:
+                timeout_ns = int(self.config.timesync_timeout_s * 1e9)
+                stale = [ts1 for ts1, tx in self._ts_pending.items() if now - tx > timeout_ns]
+                for ts1 in stale:
+                    del self._ts_pending[ts1]
+                self._ts_unanswered += len(stale)
+                if now >= self._ts_next_ns:
+                    fast = self._ts_fast_left > 0 and self._state is LinkState.UP
+                    hz = self.config.timesync_fast_hz if fast else self.config.timesync_slow_hz
+                    if fast:
+                        self._ts_fast_left -= 1
+                    self._ts_next_ns = now + int(1e9 / max(hz, 1e-3))
+                    send_timesync = True
+            # stream rates, one command at a time (a COMMAND_ACK does not say which message it answers)
+            while self._rate_jobs and self._state is LinkState.UP:
+                job = self._rate_jobs[0]
+                exhausted = job.attempts >= self.config.rate_max_attempts and now >= job.deadline_ns
+                if job.acked or exhausted:
+                    self._rate_jobs.pop(0)
+                    result = RateRequestResult(
+                        job.rate.message_id, job.rate.name, job.rate.rate_hz, job.ack, job.attempts, now
+                    )
+                    self._rate_results[job.rate.message_id] = result
+                    events.append(self._rate_event(result))
+                    continue
+                if job.attempts < self.config.rate_max_attempts and now >= job.deadline_ns:
+                    job.attempts += 1
+                    job.deadline_ns = now + int(self.config.rate_ack_timeout_s * 1e9)
+                    rate_to_send = job.rate
+                    confirmation = min(job.attempts - 1, 255)
+                break
+        for event, level in events:
+            self._emit(event, level)
+        if send_timesync:
+            self._send_timesync()
+        if rate_to_send is not None:
+            self._send_rate_request(rate_to_send, confirmation)
+
+    def _send_timesync(self) -> None:
+        tx_ns = self._clock()
+        msg = self._packer.timesync_encode(0, tx_ns)
+        with self._lock:
+            self._ts_pending[tx_ns] = tx_ns
+            self._ts_sent += 1
+        self.send(msg)
+
+    def _send_rate_request(self, rate: StreamRate, confirmation: int) -> None:
+        with self._lock:
+            comp = self._ap_component or 1
+        self.send_command_long(
+            self._ap_system,
+            comp,
+            mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL,
+            (rate.message_id, rate.interval_us, 0, 0, 0, 0, 0),
+            confirmation=confirmation,
+        )
+
+    def _schedule_rates_locked(self) -> None:
+        if self.config.request_rates:
+            self._rate_jobs = [_RateJob(rate) for rate in self.config.stream_rates]
+
+    def _rate_event(self, result: RateRequestResult) -> tuple[LinkEvent, int]:
+        """Called with self._lock held."""
+        if result.result is None:
+            detail = f"{result.name} at {result.rate_hz:g} Hz: no COMMAND_ACK after {result.attempts} attempts"
+        else:
+            entry = mavlink2.enums["MAV_RESULT"].get(result.result)
+            outcome = getattr(entry, "name", str(result.result))
+            detail = f"{result.name} at {result.rate_hz:g} Hz: {outcome} (attempt {result.attempts})"
+        event = LinkEvent(
+            LinkEventKind.RATE_REQUEST, result.host_ns, self._ap_system, self._ap_component or 0, detail=detail
+        )
+        return event, logging.INFO if result.accepted else logging.WARNING

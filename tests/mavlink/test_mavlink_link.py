@@ -1,0 +1,311 @@
+"""MavlinkLink against pymavlink peers over 127.0.0.1: liveness events, stream-rate requests, TIMESYNC,
+robustness to garbage and to a TCP peer going away, subscriptions, and a clean stop."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+
+import pytest
+from mavlink_peers import AutopilotPeer, free_udp_port, wait_until
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from icgt.mavlink.link import (
+    DEFAULT_STREAM_RATES,
+    LinkConfig,
+    LinkError,
+    LinkEvent,
+    LinkEventKind,
+    LinkState,
+    MavlinkLink,
+    Received,
+    TimesyncSample,
+)
+
+RATE_IDS = [r.message_id for r in DEFAULT_STREAM_RATES]
+
+
+class Recorder:
+    def __init__(self):
+        self.events: list[LinkEvent] = []
+        self.timesync: list[TimesyncSample] = []
+        self.lock = threading.Lock()
+
+    def on_event(self, e: LinkEvent) -> None:
+        with self.lock:
+            self.events.append(e)
+
+    def on_timesync(self, s: TimesyncSample) -> None:
+        with self.lock:
+            self.timesync.append(s)
+
+    def kinds(self) -> list[LinkEventKind]:
+        with self.lock:
+            return [e.kind for e in self.events]
+
+    def of(self, kind: LinkEventKind) -> list[LinkEvent]:
+        with self.lock:
+            return [e for e in self.events if e.kind is kind]
+
+
+def make_link(rec: Recorder | None = None, **overrides) -> tuple[MavlinkLink, int]:
+    port = free_udp_port()
+    cfg = dict(url=f"udpin:127.0.0.1:{port}", link_timeout_s=0.3, rate_ack_timeout_s=0.1, timesync_fast_hz=20.0)
+    cfg.update(overrides)
+    rec = rec or Recorder()
+    link = MavlinkLink(LinkConfig(**cfg), on_event=rec.on_event, on_timesync=rec.on_timesync)
+    return link, port
+
+
+@pytest.fixture
+def recorder():
+    return Recorder()
+
+
+def our_threads() -> list[str]:
+    return [t.name for t in threading.enumerate() if t.name.startswith("icgt-")]
+
+
+def test_link_loss_and_return_with_outage_and_rates_resent(recorder):
+    link, port = make_link(recorder, link_timeout_s=0.4)
+    link.start()
+    ap = AutopilotPeer(port)
+    try:
+        ap.stream(hz=50)
+        assert wait_until(lambda: LinkEventKind.AUTOPILOT_SEEN in recorder.kinds())
+        assert link.autopilot == (1, 1) and link.state is LinkState.UP
+        assert wait_until(lambda: len(link.rate_results()) == len(RATE_IDS), timeout=5.0)
+        assert all(r.accepted for r in link.rate_results())
+        requested = [m for m, _, _ in ap.interval_requests]
+        assert requested[: len(RATE_IDS)] == RATE_IDS  # one at a time, in the configured order
+        intervals = {m: us for m, us, _ in ap.interval_requests}
+        assert intervals[mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT] == 20_000  # 50 Hz default
+
+        ap.silence()
+        silent_at = time.monotonic_ns()
+        assert wait_until(lambda: any(e.host_ns > silent_at for e in recorder.of(LinkEventKind.AUTOPILOT_LOST)))
+        lost = next(e for e in recorder.of(LinkEventKind.AUTOPILOT_LOST) if e.host_ns > silent_at)
+        assert 0.4e9 <= lost.outage_ns < 1.0e9
+        time.sleep(0.4)
+        n_before = len(ap.interval_requests)
+        ap.stream()
+        assert wait_until(lambda: any(e.host_ns > silent_at for e in recorder.of(LinkEventKind.AUTOPILOT_BACK)))
+        back = next(e for e in recorder.of(LinkEventKind.AUTOPILOT_BACK) if e.host_ns > silent_at)
+        gap = back.host_ns - silent_at
+        assert back.outage_ns is not None and abs(back.outage_ns - gap) < 0.1e9 and back.outage_ns >= 0.75e9
+        assert wait_until(lambda: len(ap.interval_requests) >= n_before + len(RATE_IDS), timeout=5.0)
+        assert [m for m, _, _ in ap.interval_requests[n_before:]][: len(RATE_IDS)] == RATE_IDS
+        assert link.stats().outages >= 1
+    finally:
+        ap.close()
+        link.stop()
+
+
+def test_rate_requests_are_retried_until_acked_and_bounded(recorder):
+    link, port = make_link(recorder, rate_max_attempts=3, rate_ack_timeout_s=0.15)
+    ap = AutopilotPeer(port)
+    gps = mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT
+    att = mavlink2.MAVLINK_MSG_ID_ATTITUDE
+    ap.ignore_first[gps] = 2
+    ap.never_ack.add(att)
+    link.start()
+    try:
+        ap.stream(hz=50)
+        assert wait_until(lambda: len(link.rate_results()) == len(RATE_IDS), timeout=3.0)
+        results = {r.message_id: r for r in link.rate_results()}
+        assert results[gps].accepted and results[gps].attempts == 3
+        assert results[att].result is None and results[att].attempts == 3
+        assert [c for m, _, c in ap.interval_requests if m == gps] == [0, 1, 2]  # confirmation counts re-sends
+        assert len([m for m, _, _ in ap.interval_requests if m == att]) == 3
+        others = [r for m, r in results.items() if m not in (gps, att)]
+        assert all(r.accepted for r in others)  # the one never answered did not block the rest
+        details = [e.detail for e in recorder.of(LinkEventKind.RATE_REQUEST)]
+        assert any("ATTITUDE at 50 Hz: no COMMAND_ACK after 3 attempts" in d for d in details)
+    finally:
+        ap.close()
+        link.stop()
+
+
+def test_reboot_detected_and_rates_requested_again(recorder):
+    link, port = make_link(recorder, link_timeout_s=5.0)
+    link.start()
+    ap = AutopilotPeer(port)
+    try:
+        ap.heartbeat()
+        ap.send(ap.mav.attitude_encode(600_000, 0, 0, 0, 0, 0, 0))
+        assert wait_until(lambda: len(link.rate_results()) == len(RATE_IDS))
+        n = len(ap.interval_requests)
+        ap.send(ap.mav.attitude_encode(1_200, 0, 0, 0, 0, 0, 0))  # boot clock restarted
+        assert wait_until(lambda: LinkEventKind.AUTOPILOT_REBOOTED in recorder.kinds())
+        assert wait_until(lambda: len(ap.interval_requests) >= n + len(RATE_IDS))
+    finally:
+        ap.close()
+        link.stop()
+
+
+def test_timesync_client_pairs_replies(recorder):
+    link, port = make_link(recorder, request_rates=False, timesync_fast_hz=10.0, timesync_fast_count=5)
+    link.start()
+    ap = AutopilotPeer(port)
+    other = AutopilotPeer(port, system=1, component=191)  # another component answering: not our autopilot
+    try:
+        ap.stream(hz=20)
+        assert wait_until(lambda: len(recorder.timesync) >= 4, timeout=2.0)
+        # replies that are not answers to our requests are ignored
+        ap.send(ap.mav.timesync_encode(123, 987_654_321))
+        other.send(other.mav.timesync_encode(456, ap.timesync_requests[-1]))
+        time.sleep(0.05)
+        samples = list(recorder.timesync)
+        assert all(s.autopilot_tc1_ns not in (123, 456) for s in samples)
+        sent = set(ap.timesync_requests)
+        for s in samples:
+            assert s.host_tx_ns in sent  # ts1 matched
+            assert s.host_tx_ns <= s.host_rx_ns and s.rtt_ns < 200e6
+            # the peer answers with its boot clock: host time minus its boot instant
+            assert s.host_tx_ns - 1e6 <= s.autopilot_tc1_ns + ap.boot_ns <= s.host_rx_ns + 1e6
+        # several per second at first (5 at 10 Hz here), then 1 Hz
+        assert samples[3].host_tx_ns - samples[0].host_tx_ns < 0.5e9
+        assert wait_until(lambda: len(ap.timesync_requests) >= 6)
+        n = len(ap.timesync_requests)
+        time.sleep(0.6)
+        assert len(ap.timesync_requests) - n <= 1
+        assert link.stats().timesync_answered == len(recorder.timesync)
+    finally:
+        other.close()
+        ap.close()
+        link.stop()
+
+
+def test_unanswered_timesync_is_forgotten(recorder):
+    link, port = make_link(recorder, request_rates=False, timesync_timeout_s=0.1)
+    ap = AutopilotPeer(port)
+    ap.answer_timesync = False
+    link.start()
+    try:
+        ap.heartbeat()
+        assert wait_until(lambda: link.stats().timesync_unanswered >= 2)
+        assert recorder.timesync == []
+    finally:
+        ap.close()
+        link.stop()
+
+
+def test_garbage_and_callback_errors_never_stop_the_reader(recorder):
+    link, port = make_link(recorder, request_rates=False, timesync=False)
+    got: list[Received] = []
+
+    def bad_callback(r):
+        raise RuntimeError("subscriber bug")
+
+    link.subscribe(bad_callback)
+    link.subscribe(got.append, ["ATTITUDE"])
+    link.start()
+    ap = AutopilotPeer(port)
+    try:
+        import random
+
+        rng = random.Random(3)
+        for _ in range(50):
+            ap.send_raw(bytes(rng.randrange(256) for _ in range(rng.randint(1, 300))))
+        ap.send_raw(b"\xfd\xff" + b"\x00" * 20)  # a v2 start with a huge length, cut short
+        ap.send(ap.mav.attitude_encode(77, 0, 0, 0, 0, 0, 0))
+        assert wait_until(lambda: any(r.msg.time_boot_ms == 77 for r in got))
+        stats = link.stats()
+        assert stats.bad_frames >= 50 and stats.callback_errors >= 1
+        assert got[-1].mavlink_version == 2 and got[-1].src_system == 1
+    finally:
+        ap.close()
+        link.stop()
+
+
+def test_subscribe_queue_is_bounded_and_drops_oldest(recorder):
+    link, port = make_link(recorder, request_rates=False, timesync=False)
+    q = link.subscribe_queue(["ATTITUDE"], maxsize=3)
+    link.start()
+    ap = AutopilotPeer(port)
+    try:
+        for i in range(10):
+            ap.send(ap.mav.attitude_encode(i, 0, 0, 0, 0, 0, 0))
+        assert wait_until(lambda: link.stats().queue_drops == 7)
+        assert [q.get_nowait().msg.time_boot_ms for _ in range(3)] == [7, 8, 9]
+    finally:
+        ap.close()
+        link.stop()
+
+
+def test_tcp_peer_going_away_and_coming_back(recorder):
+    server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    server.bind(("127.0.0.1", 0))
+    server.listen(1)
+    server.settimeout(2.0)
+    port = server.getsockname()[1]
+    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    hb = mav.heartbeat_encode(mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_PX4, 0, 0, 4)
+    link = MavlinkLink(
+        LinkConfig(f"tcp:127.0.0.1:{port}", request_rates=False, timesync=False, reopen_delay_s=0.05),
+        on_event=recorder.on_event,
+    )
+    got: list[Received] = []
+    link.subscribe(got.append, ["HEARTBEAT"])
+    link.start()
+    try:
+        conn, _ = server.accept()
+        conn.sendall(hb.pack(mav))
+        assert wait_until(lambda: len(got) == 1)
+        conn.close()  # the autopilot side drops the connection
+        assert wait_until(lambda: LinkEventKind.TRANSPORT_ERROR in recorder.kinds())
+        conn2, _ = server.accept()  # the link reconnects by itself
+        assert wait_until(lambda: LinkEventKind.TRANSPORT_REOPENED in recorder.kinds())
+        conn2.sendall(hb.pack(mav))
+        assert wait_until(lambda: len(got) == 2)
+        assert link.send(mav.heartbeat_encode(30, 8, 0, 0, 4))
+        conn2.settimeout(1.0)
+        assert conn2.recv(64)[0] == 0xFD
+        conn2.close()
+    finally:
+        link.stop()
+        server.close()
+
+
+def test_tcpin_accepts_a_new_client_after_one_leaves(recorder):
+    port = free_udp_port()  # a free TCP port just as well on 127.0.0.1
+    link = MavlinkLink(LinkConfig(f"tcpin:127.0.0.1:{port}", request_rates=False, timesync=False))
+    got: list[Received] = []
+    link.subscribe(got.append, ["HEARTBEAT"])
+    link.start()
+    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    hb = mav.heartbeat_encode(mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_PX4, 0, 0, 4)
+    try:
+        for n in (1, 2):
+            client = socket.create_connection(("127.0.0.1", port), timeout=2.0)
+            client.sendall(hb.pack(mav))
+            assert wait_until(lambda n=n: len(got) == n)
+            client.close()
+        assert link.stats().transport_errors == 0
+    finally:
+        link.stop()
+
+
+def test_bad_urls_raise_link_error():
+    for url in ("", "bogus:1.2.3.4", "/dev/does-not-exist-icgt,921600", "udpin:not-an-address"):
+        with pytest.raises(LinkError):
+            MavlinkLink(LinkConfig(url)).start()
+
+
+def test_stop_joins_threads_and_closes_the_socket(recorder):
+    before = our_threads()
+    link, port = make_link(recorder)
+    link.start()
+    assert len(our_threads()) == len(before) + 2
+    conn = link._conn
+    link.stop()
+    assert our_threads() == before
+    assert conn.port.fileno() == -1  # socket closed
+    assert not link.send(link.mav.heartbeat_encode(30, 8, 0, 0, 4))
+    link.stop()  # twice is fine
+    # the port is free again
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", port))
+    s.close()

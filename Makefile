@@ -73,8 +73,7 @@ bench: venv
 clean:
 	rm -rf build $(VENV) demo-out
 
-# Until the recorder lands (host synchroniser issue) the demo decodes the shared mixed
-# capture stream with the Python codec, the piece of the pipeline that exists.
-demo: venv
-	@echo "make demo: the recorder and simulator are not built yet; decoding a recorded capture stream instead."
-	$(VENV)/bin/icgt decode protocol/vectors/valid/mixed_stream.bin | tail -n 3
+# The main job on simulated hardware: the pier-scan scenario recorded, started and stopped from a
+# ground station over MAVLink, and scored against ground truth (results in demo-out/).
+demo: venv build
+	$(VENV)/bin/icgt demo --scenario pier_scan --out demo-out

@@ -3,13 +3,36 @@
 from __future__ import annotations
 
 import argparse
+import json
+import logging
+import signal
 import sys
+import threading
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from icgt import __version__
 from icgt.errors import IcgtError
 from icgt.protocol import PROTOCOL_VERSION, TABLE_HASH, StreamDecoder
 from icgt.protocol.canonical import dumps, message_dict
+
+log = logging.getLogger("icgt")
+
+
+def _until_signal(stop: Callable[[], None]) -> threading.Event:
+    """Call `stop` on SIGINT/SIGTERM (once); returns an event set when that happens."""
+    done = threading.Event()
+
+    def handler(signum: int, _frame: Any) -> None:
+        if not done.is_set():
+            done.set()
+            log.info("stopping (%s)", signal.Signals(signum).name)
+            stop()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+    return done
 
 
 def _cmd_version(_: argparse.Namespace) -> int:
@@ -37,18 +60,142 @@ def _cmd_decode(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_record(args: argparse.Namespace) -> int:
+    from icgt.control import default_socket_path
+    from icgt.recorder import Recorder, load_config
+
+    config = load_config(args.config).with_overrides(
+        device_url=args.device, mavlink_url=args.mavlink, out_dir=args.out
+    )
+    recorder = Recorder(config, control_socket=args.socket or default_socket_path())
+    path = recorder.start()
+    print(f"recording to {path}; control socket {args.socket or default_socket_path()}", flush=True)
+    _until_signal(recorder.stop)
+    recorder.wait()
+    recorder.stop()
+    if recorder.failure is not None:
+        raise recorder.failure
+    print(f"{recorder.frames} frames recorded in {path}")
+    return 0
+
+
+def _control(args: argparse.Namespace, message: dict[str, Any]) -> dict[str, Any]:
+    from icgt.control import default_socket_path, request
+
+    return request(args.socket or default_socket_path(), message)
+
+
+def _cmd_start(args: argparse.Namespace) -> int:
+    _control(args, {"command": "start", "interval_s": args.interval, "count": args.count})
+    print("capture started")
+    return 0
+
+
+def _cmd_stop(args: argparse.Namespace) -> int:
+    _control(args, {"command": "stop"})
+    print("capture stopped")
+    return 0
+
+
+def _cmd_status(args: argparse.Namespace) -> int:
+    reply = _control(args, {"command": "status"})
+    print(json.dumps(reply["status"], indent=2))
+    return 0
+
+
+def _cmd_recover(args: argparse.Namespace) -> int:
+    from icgt.recording import recover
+
+    src: Path = args.source
+    dst: Path = args.output or src.with_name(src.stem + "-recovered.mcap")
+    print(recover(src, dst).describe())
+    return 0
+
+
+def _cmd_sim(args: argparse.Namespace) -> int:
+    from icgt.sim.scenario import load_scenario
+    from icgt.sim.session import SimSession
+
+    scenario = load_scenario(args.scenario)
+    session = SimSession(scenario, args.out, mavlink_port=args.mavlink_port, gcs_port=args.gcs_port)
+    urls = session.start()
+    print(f"scenario {scenario.name}: {scenario.duration_s:.0f} s", flush=True)
+    print(f"  icgt record --device {urls.device} --mavlink {urls.mavlink}", flush=True)
+    print(f"  ground station: {urls.gcs} (the autopilot routes it to the camera, component 100)", flush=True)
+    stop = threading.Event()
+    _until_signal(stop.set)
+    try:
+        session.wait_until(args.duration or scenario.duration_s, stop)
+    finally:
+        session.stop()
+    print(f"truth written to {args.out}")
+    return 0
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from icgt.demo import run_demo
+
+    summary = run_demo(args.scenario, args.out)
+    return 0 if summary.get("ok") else 1
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="icgt", description="ICGT image capturing and geo-tagging: host tools")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("version", help="print the package and protocol versions").set_defaults(func=_cmd_version)
+
     decode = sub.add_parser("decode", help="decode a raw device byte stream to JSON lines")
     decode.add_argument("stream", type=Path, help="file holding bytes read from the device's serial port")
     decode.set_defaults(func=_cmd_decode)
+
+    record = sub.add_parser("record", help="record a flight: device + autopilot -> geotagged MCAP")
+    record.add_argument("--device", help="device URL: /dev/ttyACM0, socket://host:port, the simulator's path")
+    record.add_argument("--mavlink", help="autopilot URL: udpin:0.0.0.0:14550, tcp:host:port, /dev/ttyAMA0,921600")
+    record.add_argument("--out", type=Path, help="output directory")
+    record.add_argument("--config", type=Path, help="recorder configuration (TOML)")
+    record.add_argument("--socket", type=Path, help="control socket path (default: in $XDG_RUNTIME_DIR)")
+    record.set_defaults(func=_cmd_record)
+
+    for name, func, text in (
+        ("start", _cmd_start, "start capture on the running recorder"),
+        ("stop", _cmd_stop, "stop capture on the running recorder"),
+        ("status", _cmd_status, "show the running recorder's state"),
+    ):
+        p = sub.add_parser(name, help=text)
+        p.add_argument("--socket", type=Path, help="control socket path")
+        if name == "start":
+            p.add_argument("--interval", type=float, help="seconds between shots (default: the config's)")
+            p.add_argument("--count", type=int, default=0, help="shots (0: until stopped)")
+        p.set_defaults(func=func)
+
+    rec = sub.add_parser("recover", help="turn an unfinished MCAP (killed recorder, power cut) into a complete one")
+    rec.add_argument("source", type=Path)
+    rec.add_argument("output", type=Path, nargs="?", help="default: SOURCE-recovered.mcap")
+    rec.set_defaults(func=_cmd_recover)
+
+    sim = sub.add_parser("sim", help="run a simulated device, autopilot and camera for a scenario")
+    sim.add_argument("scenario", help="scenario name (pier_scan, deck_pass, hover) or TOML file")
+    sim.add_argument("--out", type=Path, default=Path("sim-out"), help="truth and camera card directory")
+    sim.add_argument("--mavlink-port", type=int, default=14550)
+    sim.add_argument("--gcs-port", type=int, default=14551)
+    sim.add_argument("--duration", type=float, help="seconds (default: the scenario's)")
+    sim.set_defaults(func=_cmd_sim)
+
+    demo = sub.add_parser("demo", help="the main job on simulated hardware, with a summary against truth")
+    demo.add_argument("--scenario", default="pier_scan")
+    demo.add_argument("--out", type=Path, default=Path("demo-out"))
+    demo.set_defaults(func=_cmd_demo)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
     try:
         code: int = args.func(args)
     except IcgtError as exc:

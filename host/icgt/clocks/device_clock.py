@@ -1,0 +1,1037 @@
+"""Device clock -> host clock from NTP-style TIME_SYNC exchanges, and device clock -> UTC from GPS PPS.
+
+Clocks
+------
+- host clock: ``time.monotonic_ns()`` on the companion computer [ns].
+- device clock: the firmware's 64-bit microsecond counter [us] (never adjusted; restarts at 0 on boot).
+
+Method (why not "lowest RTT, then least squares")
+-------------------------------------------------
+One exchange gives two causality constraints on the true line ``host = f(device)``:
+
+- request:  ``f(device_rx) >= host_tx``  (the request cannot arrive before it was sent),
+- reply:    ``f(device_tx) <= host_rx``  (the reply cannot arrive before it was sent).
+
+In the (device, host) plane the request points lie below the true line and the reply points
+above it, each at a distance equal to that direction's one-way delay. Over USB full speed the
+delays are dominated by the wait for a 1 ms frame. Picking the lowest-RTT exchange and halving
+it needs *both* directions near their floor in the same exchange (error falls like 1/sqrt(N));
+the envelope of each direction separately reaches its floor much faster. So the filter keeps
+the upper convex hull of the request points and the lower convex hull of the reply points over
+a bounded window and places the line midway between the two envelopes (equal clearance, i.e.
+equal path floors assumed, or a configured ``path_asymmetry_ns``). Delay spikes never touch an
+envelope, so they are harmless (those above ``rtt_limit_ns`` are not even stored).
+
+The slope is not taken from the two or three extreme points that hold the widest separating
+band (one unlucky point near the end of the window would tilt it) but from the envelope points
+of equal time buckets, each side weighted by how sharp its floor is (``_bucket_slope``), always
+clipped to the slopes that violate no exchange.
+
+Frame-synchronous links. When requests also wait for the frame grid (as hil_sim's link does:
+both directions released at the next 1 ms boundary), the reply always leaves one frame after
+the request arrived, so measured from the device's transmit stamp it never gets near its floor
+and the symmetric midline would be off by about half a frame. The filter detects this from the
+arrival times themselves (mapped to host time they pile up at one phase of the frame) and then
+measures the reply from the receive stamp less one frame plus the arrival spread; the slope
+that makes the arrival phase sharpest is the drift (``ClockEstimate.frame_locked``).
+
+Uncertainty (a worst-case bound, not a sigma)
+----------------------------------------------
+Every line that violates no exchange's constraint is a possible truth. The reported
+``uncertainty_ns`` at a device time is the largest distance from the estimate to any such line
+there whose slope is also within 4 standard errors of the estimated drift (a small LP over the
+same hulls), plus the 1 us stamp resolution, plus an allowance for the crystal's frequency wander
+(``wander_ppm``) for queries outside the window (extrapolation across an unplug grows linearly).
+It holds whatever the path asymmetry is, provided the clock is linear over the window (and,
+when frame-locked, that the frame model holds); so it includes the constant asymmetry of the two
+paths' floors that no two-way method can observe (about half the lowest round trip), and is
+typically several times the actual error.
+
+The window is trimmed by age and count (bounded memory for hours of flight), but old samples
+are only dropped once newer ones span half the window, so after a long gap the drift measured
+before it still carries across. If the window cannot be fitted by any line (the crystal's
+frequency changed too much), the oldest samples are dropped until it can.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from enum import Enum
+
+from icgt.errors import IcgtError
+
+__all__ = [
+    "ClockError",
+    "ClockEstimate",
+    "ClockNotSyncedError",
+    "DeviceClockFilter",
+    "ExchangeStatus",
+    "PpsEstimate",
+    "PpsStatus",
+    "PpsUtcMapper",
+    "ResetReason",
+]
+
+_GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
+_SLOPE_ITERATIONS = 80  # golden-section steps: 2e-3 * 0.618**80 ~ 4e-20, far below double rounding
+
+
+class ClockError(IcgtError):
+    """A clock mapping problem."""
+
+
+class ClockNotSyncedError(ClockError):
+    """A mapping was asked for before any exchange (or PPS edge) was accepted."""
+
+
+class ExchangeStatus(Enum):
+    """What ``add_exchange`` did with one exchange."""
+
+    ACCEPTED = "accepted"
+    REJECTED_RTT = "rejected_rtt"  # round trip above rtt_limit_ns: a delay spike
+    REJECTED_INVALID = "rejected_invalid"  # impossible stamps (reply before request, negative net RTT)
+    RESET_REBOOT = "reset_reboot"  # the remote clock went backwards: rebooted; accepted as the first of a new window
+    RESET_JUMP = "reset_jump"  # the exchange contradicts the current line by far more than its bound
+
+
+class ResetReason(Enum):
+    """Why a filter dropped its window (``last_reset_reason``)."""
+
+    NONE = "none"
+    REBOOT = "reboot"
+    JUMP = "jump"
+    CALLER = "caller"
+
+
+@dataclass(frozen=True, slots=True)
+class ClockEstimate:
+    """The current line ``host_ns = ref_host_ns + (clock_us - ref_clock_us) * 1000 / (1 + drift_ppm * 1e-6)``.
+
+    ``clock`` is the remote clock: the device clock [us] for DeviceClockFilter, the autopilot
+    boot clock [us] for AutopilotClockFilter. ``drift_ppm`` is how fast the remote clock runs
+    relative to the host clock (+50 = it gains 50 us per host second). ``uncertainty_ns`` is a
+    worst-case bound (see the module docstring) on the error of the mapping at ``ref_clock_us``,
+    the remote time of the newest exchange used, whose host receive time is ``t_host_ns``.
+    """
+
+    valid: bool
+    settled: bool
+    n_used: int
+    ref_clock_us: float
+    ref_host_ns: int
+    drift_ppm: float
+    uncertainty_ns: int
+    t_host_ns: int
+    min_rtt_ns: int
+    span_s: float
+    resets: int
+    frame_locked: bool = False
+
+    @property
+    def offset_ns(self) -> float:
+        """host_ns - clock_us * 1000 at the reference [ns]."""
+        return self.ref_host_ns - self.ref_clock_us * 1000.0
+
+    def to_dict(self) -> dict[str, float | int | bool]:
+        """Flat record for the log (so frames can be re-timed offline)."""
+        d: dict[str, float | int | bool] = asdict(self)
+        d["offset_ns"] = self.offset_ns
+        return d
+
+
+_INVALID = ClockEstimate(False, False, 0, 0.0, 0, 0.0, 0, 0, 0, 0.0, 0)
+
+
+@dataclass(frozen=True, slots=True)
+class _Sample:
+    host_tx_ns: int
+    rx: float  # remote clock [us], centred on its resolution step
+    tx: float
+    host_rx_ns: int
+
+
+@dataclass(frozen=True, slots=True)
+class _Fit:
+    ref_x: float  # remote clock [us] of the reference (newest sample's receive stamp)
+    ref_host_ns: int  # host stamp the relative coordinates are measured from
+    a: float  # line: u = a + s * x, with x = (remote - ref_x) * 1000 [ns], u = host - ref_host - x [ns]
+    s: float
+    s_lo: float  # feasible slope interval (all lines consistent with the window)
+    s_hi: float
+    b_lo: float  # slopes the uncertainty bound considers (feasible and statistically plausible)
+    b_hi: float
+    hull_a: tuple[tuple[float, float], ...]  # upper hull of request points (x, u): lines pass above
+    hull_b: tuple[tuple[float, float], ...]  # lower hull of reply points: lines pass below
+    x_min: float
+    x_max: float
+    n: int
+    min_rtt_ns: int
+    t_host_ns: int
+    frame_locked: bool
+
+
+def _cross(o: tuple[float, float], a: tuple[float, float], b: tuple[float, float]) -> float:
+    return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+
+def _upper_hull(points: Sequence[tuple[float, float]]) -> tuple[tuple[float, float], ...]:
+    """Upper convex hull (monotone chain) of points sorted by x."""
+    hull: list[tuple[float, float]] = []
+    for p in sorted(points):
+        while len(hull) >= 2 and _cross(hull[-2], hull[-1], p) >= 0.0:
+            hull.pop()
+        hull.append(p)
+    return tuple(hull)
+
+
+def _lower_hull(points: Sequence[tuple[float, float]]) -> tuple[tuple[float, float], ...]:
+    hull: list[tuple[float, float]] = []
+    for p in sorted(points):
+        while len(hull) >= 2 and _cross(hull[-2], hull[-1], p) <= 0.0:
+            hull.pop()
+        hull.append(p)
+    return tuple(hull)
+
+
+def _bucket_slope(
+    pts_a: Sequence[tuple[float, float]],
+    pts_b: Sequence[tuple[float, float]],
+    a0: float,
+    s0: float,
+    floor_var: float,
+) -> tuple[float, float]:
+    """Drift from the envelope points of each side in equal time buckets, weighted by how sharp each side is.
+
+    The max-margin slope rests on two or three extreme points, so one unlucky point near the end of
+    the window tilts it. Here each side (requests below the line, replies above) contributes the
+    point closest to the line in each of several equal time buckets; a common slope with one
+    intercept per side is fitted by least squares, each side weighted by the inverse variance of
+    its own bucket minima (a path with a sharp floor, e.g. a request that goes out at once, then
+    dominates one whose floor is blurred by the frame wait and the scheduler).
+    ``floor_var`` [ns^2] bounds each side's variance from below (a handful of buckets can fit by luck).
+    Returns the slope and its standard error (inf when there are too few buckets).
+    """
+    xs_all = [p[0] for p in pts_a] + [p[0] for p in pts_b]
+    x_lo, x_hi = min(xs_all), max(xs_all)
+    n_buckets = max(4, min(12, len(pts_a) // 8))
+    width = (x_hi - x_lo) / n_buckets
+    if width <= 0.0:
+        return s0, math.inf
+    sides: list[list[tuple[float, float]]] = []
+    for pts, sign in ((pts_a, 1.0), (pts_b, -1.0)):
+        best: dict[int, tuple[float, float, float]] = {}
+        count: dict[int, int] = {}
+        for x, u in pts:
+            b = min(n_buckets - 1, int((x - x_lo) / width))
+            clearance = sign * (a0 + s0 * x - u)
+            count[b] = count.get(b, 0) + 1
+            if b not in best or clearance < best[b][0]:
+                best[b] = (clearance, x, u)
+        # A bucket of one or two exchanges (a burst of rejected ones) says little about the floor.
+        sides.append([(x, u) for b, (_, x, u) in best.items() if count[b] >= 3])
+    num = 0.0
+    den = 0.0
+    for side in sides:
+        if len(side) < 4:
+            return s0, math.inf
+        mx = sum(x for x, _ in side) / len(side)
+        mu = sum(u for _, u in side) / len(side)
+        sxx = sum((x - mx) ** 2 for x, _ in side)
+        sxy = sum((x - mx) * (u - mu) for x, u in side)
+        if sxx <= 0.0:
+            return s0, math.inf
+        slope = sxy / sxx
+        resid = sum((u - mu - slope * (x - mx)) ** 2 for x, u in side) / max(1, len(side) - 2)
+        w = 1.0 / max(resid, floor_var)
+        num += w * sxy
+        den += w * sxx
+    return num / den, math.sqrt(1.0 / den)
+
+
+def _golden_max(f: Callable[[float], float], lo: float, hi: float) -> float:
+    """Argmax of a concave function on [lo, hi] (ties keep a maximiser inside the bracket)."""
+    if hi - lo <= 0.0:
+        return lo
+    c = hi - _GOLDEN * (hi - lo)
+    d = lo + _GOLDEN * (hi - lo)
+    fc, fd = f(c), f(d)
+    for _ in range(_SLOPE_ITERATIONS):
+        if fc < fd:
+            lo, c, fc = c, d, fd
+            d = lo + _GOLDEN * (hi - lo)
+            fd = f(d)
+        else:
+            hi, d, fd = d, c, fc
+            c = hi - _GOLDEN * (hi - lo)
+            fc = f(c)
+        if hi - lo < 1e-18:
+            break
+    best = max((lo, f(lo)), (hi, f(hi)), (c, fc), (d, fd), key=lambda t: t[1])
+    return best[0]
+
+
+def _bisect_edge(ok: Callable[[float], bool], inside: float, outside: float) -> float:
+    """Last point from ``inside`` towards ``outside`` where ``ok`` still holds (ok is an interval)."""
+    for _ in range(70):
+        mid = 0.5 * (inside + outside)
+        if ok(mid):
+            inside = mid
+        else:
+            outside = mid
+    return inside
+
+
+class _TwoWayLine:
+    """Shared engine: a remote clock [us] against the host clock [ns] from two-way exchanges.
+
+    The remote stamps of one exchange may be two (receive, transmit: the Teensy) or one
+    (MAVLink TIMESYNC's tc1: pass it as both).
+    """
+
+    def __init__(
+        self,
+        *,
+        resolution_us: float,
+        window_s: float,
+        max_samples: int,
+        min_span_s: float,
+        max_drift_ppm: float,
+        rtt_limit_ns: int,
+        rtt_limit_inclusive: bool,
+        wander_ppm: float,
+        prior_drift_uncertainty_ppm: float,
+        path_asymmetry_ns: float,
+        jump_margin_ns: int,
+        frame_us: float | None,
+        crystal_tolerance_ppm: float,
+    ) -> None:
+        if window_s <= 0 or max_samples < 2 or min_span_s < 0 or max_drift_ppm <= 0 or rtt_limit_ns <= 0:
+            raise ValueError(
+                "need window_s > 0, max_samples >= 2, min_span_s >= 0, max_drift_ppm > 0, rtt_limit_ns > 0"
+            )
+        self._half_res = 0.5 * resolution_us
+        self._window_ns = int(window_s * 1e9)
+        self._max_samples = max_samples
+        self._min_span_ns = int(min_span_s * 1e9)
+        self._s_max = max_drift_ppm * 1e-6
+        self._rtt_limit_ns = rtt_limit_ns
+        self._rtt_inclusive = rtt_limit_inclusive
+        self._wander = wander_ppm * 1e-6
+        self._prior_unc = prior_drift_uncertainty_ppm * 1e-6
+        self._tol = crystal_tolerance_ppm * 1e-6
+        self._asym = float(path_asymmetry_ns)
+        self._jump_margin_ns = jump_margin_ns
+        self._frame_ns = None if frame_us is None else frame_us * 1000.0
+        self.frame_locked = False
+        self.arrival_width_ns = 0.0
+        self._samples: deque[_Sample] = deque()
+        self._fit: _Fit | None = None
+        self._dirty = False
+        self._prior_s: float | None = None
+        self.resets = 0
+        self.last_reset_reason = ResetReason.NONE
+        self.rejected_rtt = 0
+        self.rejected_invalid = 0
+        self.accepted = 0
+        self.samples_since_reset = 0
+        self.samples_since_gap = 0
+        self.last_host_rx_ns: int | None = None
+
+    # -- input ------------------------------------------------------------------------------
+
+    def add(self, host_tx_ns: int, remote_rx_us: float, remote_tx_us: float, host_rx_ns: int) -> ExchangeStatus:
+        host_tx_ns, host_rx_ns = int(host_tx_ns), int(host_rx_ns)
+        rx = float(remote_rx_us) + self._half_res  # stamps truncate: the true instant is half a step later on average
+        tx = float(remote_tx_us) + self._half_res
+        slack_ns = 2000.0 * self._half_res
+        turnaround_ns = (tx - rx) * 1000.0
+        net_rtt = (host_rx_ns - host_tx_ns) - turnaround_ns
+        if host_rx_ns < host_tx_ns or turnaround_ns < 0.0 or net_rtt < -slack_ns:
+            self.rejected_invalid += 1
+            return ExchangeStatus.REJECTED_INVALID
+        if net_rtt > self._rtt_limit_ns or (self._rtt_inclusive and net_rtt >= self._rtt_limit_ns):
+            self.rejected_rtt += 1
+            return ExchangeStatus.REJECTED_RTT
+
+        status = ExchangeStatus.ACCEPTED
+        if self._samples and rx < self._samples[-1].tx - self._half_res * 2.0:
+            self.reset(ResetReason.REBOOT)
+            status = ExchangeStatus.RESET_REBOOT
+        elif self._samples and self._contradicts(host_tx_ns, rx, tx, host_rx_ns):
+            self.reset(ResetReason.JUMP)
+            status = ExchangeStatus.RESET_JUMP
+
+        if self.last_host_rx_ns is not None and host_rx_ns - self.last_host_rx_ns > 5_000_000_000:
+            self.samples_since_gap = 0
+        self.last_host_rx_ns = host_rx_ns
+        self._samples.append(_Sample(host_tx_ns, rx, tx, host_rx_ns))
+        self.accepted += 1
+        self.samples_since_reset += 1
+        self.samples_since_gap += 1
+        self._trim_by_age()
+        self._dirty = True
+        return status
+
+    def reset(self, reason: ResetReason) -> None:
+        """Forget the window; keep the last drift as a prior (the crystal is the same after a reboot)."""
+        fit = self.fit()
+        if fit is not None and fit.x_max - fit.x_min >= self._min_span_ns:
+            self._prior_s = fit.s
+        self._samples.clear()
+        self._fit = None
+        self._dirty = False
+        self.resets += 1
+        self.last_reset_reason = reason
+        self.samples_since_reset = 0
+        self.samples_since_gap = 0
+
+    def _contradicts(self, host_tx_ns: int, rx: float, tx: float, host_rx_ns: int) -> bool:
+        """True if the exchange needs a negative one-way delay far beyond the current bound: a clock step."""
+        fit = self.fit()
+        if fit is None:
+            return False
+        out_delay = self._host_ns_f(fit, rx) - host_tx_ns
+        in_delay = host_rx_ns - self._host_ns_f(fit, tx)
+        bound = max(self.bound_ns(fit, rx), self.bound_ns(fit, tx))
+        return min(out_delay, in_delay) < -(bound + self._jump_margin_ns)
+
+    def _trim_by_age(self) -> None:
+        newest = self._samples[-1].host_rx_ns
+        while len(self._samples) > self._max_samples:
+            self._samples.popleft()
+        # Drop samples older than the window only once the samples inside it span half the window:
+        # after a long gap (unplug) those from before it stay and carry the drift measured there
+        # (bounded by max_samples anyway).
+        horizon = newest - self._window_ns
+        inside = next((smp.host_rx_ns for smp in self._samples if smp.host_rx_ns >= horizon), newest)
+        if newest - inside < max(self._min_span_ns, self._window_ns // 2):
+            return
+        while len(self._samples) > 2 and self._samples[0].host_rx_ns < horizon:
+            self._samples.popleft()
+
+    # -- fitting ----------------------------------------------------------------------------
+
+    def fit(self) -> _Fit | None:
+        if self._dirty:
+            self._fit = self._fit_window()
+            while self._fit is not None and self._fit.s_lo > self._fit.s_hi and len(self._samples) > 1:
+                # No line fits the whole window: the frequency moved more than the delays allow. Drop
+                # the oldest quarter and refit (cheap; rare).
+                for _ in range(max(1, len(self._samples) // 4)):
+                    if len(self._samples) > 1:
+                        self._samples.popleft()
+                self._fit = self._fit_window()
+            self._dirty = False
+        return self._fit
+
+    def _fit_window(self) -> _Fit | None:
+        fit = self._compute_fit(None)
+        if fit is None or self._frame_ns is None or fit.s_lo > fit.s_hi:
+            return fit
+        if len(self._samples) < 16:
+            # Too few arrivals to judge the link; it is the same cable as before a reset, so keep its model.
+            if not self.frame_locked:
+                return fit
+            kept = self._compute_fit(self._frame_ns - self.arrival_width_ns)
+            return kept if kept is not None and kept.s_lo <= kept.s_hi else fit
+        concentration, width, slope = self._arrival_phase(fit)
+        min_raw_rtt = min(smp.host_rx_ns - smp.host_tx_ns for smp in self._samples)
+        # Hysteresis, so a few odd arrivals do not flip the model back and forth.
+        threshold = 0.5 if self.frame_locked else 0.8
+        self.frame_locked = concentration >= threshold and min_raw_rtt >= 0.5 * self._frame_ns
+        self.arrival_width_ns = width
+        if not self.frame_locked:
+            return fit
+        locked = self._compute_fit(self._frame_ns - width, slope)
+        return locked if locked is not None and locked.s_lo <= locked.s_hi else fit
+
+    def _arrival_phase(self, fit: _Fit) -> tuple[float, float, float]:
+        """Concentration (0..1), full width [ns] and sharpest slope of the requests' arrival phase in the frame.
+
+        On a link whose requests arrive on the host controller's frame grid (USB full speed as the
+        hil_sim models it: both directions wait for the next 1 ms frame), the arrivals, mapped to
+        host time, pile up at one phase of the frame. Then the reply cannot leave before the next
+        frame, so its delay measured from the device's transmit stamp never gets near its floor
+        (it is about a frame minus the device's turnaround) and the symmetric envelope would be off
+        by half a frame. Detected, the reply side is instead measured from the *receive* stamp less
+        one frame plus the arrival spread: that quantity does reach the path's floor. The phase
+        spread is invariant to the line's unknown offset, and the slope that makes it narrowest
+        (within the causally feasible ones) measures the drift far better than the envelope's few
+        extreme points do; a grid that drifted against the host clock would not have been detected.
+        """
+        assert self._frame_ns is not None
+        frame = self._frame_ns
+        xs: list[float] = []
+        phases: list[float] = []
+        for smp in self._samples:
+            x = (smp.rx - fit.ref_x) * 1000.0
+            xs.append(x)
+            phases.append(math.fmod(fit.a + (1.0 + fit.s) * x, frame) / frame * 2.0 * math.pi)
+        c = sum(math.cos(p) for p in phases) / len(phases)
+        sn = sum(math.sin(p) for p in phases) / len(phases)
+        concentration = math.hypot(c, sn)
+        centre = math.atan2(sn, c)
+        dev = [math.remainder(p - centre, 2.0 * math.pi) / (2.0 * math.pi) * frame for p in phases]
+
+        def width(s: float) -> float:  # convex in s: max minus min of linear functions
+            moved = [d + (s - fit.s) * x for d, x in zip(dev, xs, strict=True)]
+            return max(moved) - min(moved)
+
+        slope = _golden_max(lambda s: -width(s), fit.s_lo, fit.s_hi)
+        return concentration, width(slope), slope
+
+    def _compute_fit(self, reply_shift_ns: float | None, slope_hint: float | None = None) -> _Fit | None:
+        """Max-margin line over the window. ``reply_shift_ns`` None: replies measured from the transmit
+        stamp (causal); a number: from the receive stamp, host receive time less this shift.
+        ``slope_hint``: use this slope (clipped to the feasible ones) instead of the max-margin one."""
+        if not self._samples:
+            return None
+        newest = self._samples[-1]
+        ref_x, ref_h = newest.rx, newest.host_rx_ns
+        pts_a: list[tuple[float, float]] = []
+        pts_b: list[tuple[float, float]] = []
+        min_rtt = math.inf
+        for smp in self._samples:
+            xa = (smp.rx - ref_x) * 1000.0
+            pts_a.append((xa, float(smp.host_tx_ns - ref_h) - xa))
+            if reply_shift_ns is None:
+                xb = (smp.tx - ref_x) * 1000.0
+                pts_b.append((xb, float(smp.host_rx_ns - ref_h) - xb))
+            else:
+                pts_b.append((xa, float(smp.host_rx_ns - ref_h) - reply_shift_ns - xa))
+            min_rtt = min(min_rtt, (smp.host_rx_ns - smp.host_tx_ns) - (smp.tx - smp.rx) * 1000.0)
+        hull_a = _upper_hull(pts_a)
+        hull_b = _lower_hull(pts_b)
+        x_min = min(hull_a[0][0], hull_b[0][0])
+        x_max = max(hull_a[-1][0], hull_b[-1][0])
+        slack = 2000.0 * self._half_res
+
+        def lower(s: float) -> float:  # lowest intercept a line of slope s may have (above every request)
+            return max(u - s * x for x, u in hull_a)
+
+        def upper(s: float) -> float:  # highest intercept (below every reply)
+            return min(u - s * x for x, u in hull_b)
+
+        def margin(s: float) -> float:
+            return upper(s) - lower(s)
+
+        lo, hi = -self._s_max, self._s_max
+        span_ok = x_max - x_min >= self._min_span_ns
+        if not span_ok and self._prior_s is not None:
+            # Short span after a reset: the drift measured before it bounds the slope (same crystal).
+            lo = max(lo, self._prior_s - self._prior_unc)
+            hi = min(hi, self._prior_s + self._prior_unc)
+        s_best = _golden_max(margin, lo, hi)
+        if margin(s_best) < -slack and (lo, hi) != (-self._s_max, self._s_max):
+            lo, hi = -self._s_max, self._s_max  # the prior is wrong (temperature moved): let the data speak
+            s_best = _golden_max(margin, lo, hi)
+        if margin(s_best) < -slack:
+            return _Fit(ref_x, ref_h, 0.0, s_best, 1.0, -1.0, 1.0, -1.0, hull_a, hull_b, x_min, x_max, 0, 0, 0, False)
+
+        def feasible(s: float) -> bool:
+            return margin(s) >= -slack
+
+        s_lo = lo if feasible(lo) else _bisect_edge(feasible, s_best, lo)
+        s_hi = hi if feasible(hi) else _bisect_edge(feasible, s_best, hi)
+        b_lo, b_hi = s_lo, s_hi
+        if span_ok:
+            band = max(margin(s_best), 1000.0)
+            mid = 0.5 * (lower(s_best) + upper(s_best))
+            s_bucket, sigma = _bucket_slope(pts_a, pts_b, mid, s_best, (0.03 * band) ** 2)
+            if slope_hint is None and math.isfinite(sigma):
+                # Shrink a noisy early slope towards the prior (the last drift, or the nominal rate with
+                # the crystal tolerance as its spread): inverse-variance weights.
+                prior, prior_sd = (self._prior_s, self._prior_unc) if self._prior_s is not None else (0.0, self._tol)
+                w = prior_sd**2 / (prior_sd**2 + sigma**2)
+                slope_hint = w * s_bucket + (1.0 - w) * prior
+            s = min(max(s_bucket if slope_hint is None else slope_hint, s_lo), s_hi)
+            # The bound considers the lines whose slope is within 4 standard errors of ours (and feasible):
+            # every feasible slope would be a pure worst case, several times wider than the slope's real error.
+            b_lo, b_hi = max(s_lo, s - 4.0 * sigma), min(s_hi, s + 4.0 * sigma)
+        else:
+            # Too short a span to measure the drift: use the prior (or none) within what the data allow.
+            s = min(max(self._prior_s if self._prior_s is not None else 0.0, s_lo), s_hi)
+        a = 0.5 * (lower(s) + upper(s)) + 0.5 * self._asym
+        return _Fit(
+            ref_x,
+            ref_h,
+            a,
+            s,
+            s_lo,
+            s_hi,
+            b_lo,
+            b_hi,
+            hull_a,
+            hull_b,
+            x_min,
+            x_max,
+            len(self._samples),
+            int(min_rtt),
+            newest.host_rx_ns,
+            reply_shift_ns is not None,
+        )
+
+    # -- queries ----------------------------------------------------------------------------
+
+    @staticmethod
+    def _host_ns_f(fit: _Fit, remote_us: float) -> float:
+        """Host time [ns] relative to nothing (absolute), as float, of a remote time [us]."""
+        x = (remote_us - fit.ref_x) * 1000.0
+        return fit.ref_host_ns + fit.a + (1.0 + fit.s) * x
+
+    def host_ns(self, remote_us: float) -> int:
+        fit = self._require()
+        x = (float(remote_us) - fit.ref_x) * 1000.0
+        return fit.ref_host_ns + round(fit.a + (1.0 + fit.s) * x)
+
+    def remote_us(self, host_ns: int) -> float:
+        fit = self._require()
+        u = float(int(host_ns) - fit.ref_host_ns)
+        x = (u - fit.a) / (1.0 + fit.s)
+        return fit.ref_x + x / 1000.0
+
+    def bound_ns(self, fit: _Fit, remote_us: float) -> float:
+        """Worst-case error [ns] of the estimate at a remote time: extreme consistent lines + wander."""
+        x = (float(remote_us) - fit.ref_x) * 1000.0
+        est = fit.a + fit.s * x
+
+        def top(s: float) -> float:  # highest consistent line of slope s, at x
+            return min(u + s * (x - xb) for xb, u in fit.hull_b)
+
+        def bottom(s: float) -> float:
+            return max(u + s * (x - xa) for xa, u in fit.hull_a)
+
+        s_top = _golden_max(top, fit.b_lo, fit.b_hi)
+        s_bot = _golden_max(lambda s: -bottom(s), fit.b_lo, fit.b_hi)
+        spread = max(top(s_top) - est, est - bottom(s_bot), 0.0)
+        outside = max(x - fit.x_max, fit.x_min - x, 0.0)
+        return spread + 2000.0 * self._half_res + abs(0.5 * self._asym) + self._wander * outside
+
+    def uncertainty_ns(self, remote_us: float) -> int:
+        return math.ceil(self.bound_ns(self._require(), remote_us))
+
+    def _require(self) -> _Fit:
+        fit = self.fit()
+        if fit is None or fit.n == 0:
+            raise ClockNotSyncedError("no clock exchange accepted yet")
+        return fit
+
+    def estimate(self, settled: bool) -> ClockEstimate:
+        fit = self.fit()
+        if fit is None or fit.n == 0:
+            return _INVALID
+        return ClockEstimate(
+            valid=True,
+            settled=settled,
+            n_used=fit.n,
+            ref_clock_us=fit.ref_x,
+            ref_host_ns=fit.ref_host_ns + round(fit.a),
+            drift_ppm=(1.0 / (1.0 + fit.s) - 1.0) * 1e6,
+            uncertainty_ns=math.ceil(self.bound_ns(fit, fit.ref_x)),
+            t_host_ns=fit.t_host_ns,
+            min_rtt_ns=fit.min_rtt_ns,
+            span_s=(fit.x_max - fit.x_min) * 1e-9,
+            resets=self.resets,
+            frame_locked=fit.frame_locked,
+        )
+
+    def span_ns(self) -> float:
+        fit = self.fit()
+        return 0.0 if fit is None else fit.x_max - fit.x_min
+
+    def __len__(self) -> int:
+        return len(self._samples)
+
+
+class DeviceClockFilter:
+    """Device clock [us] -> host monotonic clock [ns] from TIME_SYNC / TIME_SYNC_REPLY exchanges.
+
+    Feed it every reply with ``add_exchange``; ask ``next_exchange_interval_s`` when to send the
+    next request. Pure computation: the caller stamps ``host_tx_ns`` just before writing the
+    request and ``host_rx_ns`` as soon as the reply is read, both with ``time.monotonic_ns()``.
+
+    Defaults suit USB full speed: window 180 s / 512 exchanges (a line over 3 minutes follows a
+    crystal warming up by a few ppm without bending), drift up to +-1000 ppm, RTTs above 10 ms
+    not stored (spikes), 0.5 ppm frequency wander allowed for when extrapolating.
+    """
+
+    def __init__(
+        self,
+        *,
+        window_s: float = 120.0,
+        max_samples: int = 512,
+        min_span_s: float = 2.0,
+        max_drift_ppm: float = 1000.0,
+        rtt_limit_ns: int = 10_000_000,
+        wander_ppm: float = 0.5,
+        prior_drift_uncertainty_ppm: float = 5.0,
+        path_asymmetry_ns: float = 0.0,
+        jump_margin_ns: int = 2_000_000,
+        fast_interval_s: float = 0.2,
+        slow_interval_s: float = 1.0,
+        settle_min_samples: int = 20,
+        settle_min_span_s: float = 4.0,
+        dither: float = 0.1,
+        seed: int = 0,
+        frame_us: float | None = 1000.0,
+        crystal_tolerance_ppm: float = 100.0,
+    ) -> None:
+        """``path_asymmetry_ns``: known (request floor - reply floor) one-way delay difference, if calibrated.
+
+        ``dither``: the schedule hint varies by +-this fraction, so requests do not stay phase-locked
+        to the 1 ms USB frames (a fixed phase would be a fixed, unobservable bias).
+
+        ``crystal_tolerance_ppm``: spread of the drift before any is measured (an early, noisy slope is
+        shrunk towards the nominal rate by it); ``max_drift_ppm`` is the hard limit.
+
+        ``frame_us``: the link's frame period, for detecting requests that arrive on the frame grid
+        (see ``ClockEstimate.frame_locked``); None never assumes it.
+        """
+        self._line = _TwoWayLine(
+            resolution_us=1.0,
+            window_s=window_s,
+            max_samples=max_samples,
+            min_span_s=min_span_s,
+            max_drift_ppm=max_drift_ppm,
+            rtt_limit_ns=rtt_limit_ns,
+            rtt_limit_inclusive=False,
+            wander_ppm=wander_ppm,
+            prior_drift_uncertainty_ppm=prior_drift_uncertainty_ppm,
+            path_asymmetry_ns=path_asymmetry_ns,
+            jump_margin_ns=jump_margin_ns,
+            frame_us=frame_us,
+            crystal_tolerance_ppm=crystal_tolerance_ppm,
+        )
+        self._fast = fast_interval_s
+        self._slow = slow_interval_s
+        self._settle_n = settle_min_samples
+        self._settle_span_ns = settle_min_span_s * 1e9
+        self._dither = dither
+        self._rng = random.Random(seed)
+
+    def add_exchange(self, host_tx_ns: int, device_rx_us: int, device_tx_us: int, host_rx_ns: int) -> ExchangeStatus:
+        """One exchange: host send [ns, host], device receive and transmit [us, device], host receive [ns, host]."""
+        return self._line.add(host_tx_ns, device_rx_us, device_tx_us, host_rx_ns)
+
+    def reset(self) -> None:
+        """Forget the window (e.g. HELLO says the device rebooted); the last drift is kept as a prior."""
+        self._line.reset(ResetReason.CALLER)
+
+    def estimate(self) -> ClockEstimate:
+        """The current line and its worst-case bound at the newest exchange (``valid`` False before any)."""
+        return self._line.estimate(self.settled)
+
+    @property
+    def settled(self) -> bool:
+        """Enough exchanges over enough time since the last reset or gap to drop to the slow rate."""
+        ln = self._line
+        return (
+            ln.samples_since_reset >= self._settle_n
+            and ln.samples_since_gap >= 5
+            and ln.span_ns() >= self._settle_span_ns
+            and len(ln) > 0
+        )
+
+    def device_to_host_ns(self, device_us: float) -> int:
+        """Host monotonic time [ns] of a device time [us]. Raises ClockNotSyncedError before any exchange."""
+        return self._line.host_ns(device_us)
+
+    def host_to_device_us(self, host_ns: int) -> float:
+        """Device time [us] of a host monotonic time [ns]."""
+        return self._line.remote_us(host_ns)
+
+    def uncertainty_ns(self, device_us: float) -> int:
+        """Worst-case error bound [ns] of ``device_to_host_ns(device_us)`` (grows outside the window)."""
+        return self._line.uncertainty_ns(device_us)
+
+    def next_exchange_interval_s(self) -> float:
+        """Seconds until the next TIME_SYNC: fast until settled (and after a reset or a gap), then slow; dithered."""
+        base = self._slow if self.settled else self._fast
+        return base * (1.0 + self._dither * (2.0 * self._rng.random() - 1.0))
+
+    @property
+    def resets(self) -> int:
+        return self._line.resets
+
+    @property
+    def last_reset_reason(self) -> ResetReason:
+        return self._line.last_reset_reason
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """Accepted / rejected / reset counts since construction (for STATUS-like logging)."""
+        ln = self._line
+        return {
+            "accepted": ln.accepted,
+            "rejected_rtt": ln.rejected_rtt,
+            "rejected_invalid": ln.rejected_invalid,
+            "resets": ln.resets,
+            "in_window": len(ln),
+        }
+
+
+# ---------------------------------------------------------------------------------------------
+# GPS PPS: device clock -> UTC directly
+
+
+class PpsStatus(Enum):
+    """What ``add_pps`` did with one edge."""
+
+    ACCEPTED = "accepted"
+    REJECTED_INTERVAL = "rejected_interval"  # not a whole number of seconds after the last good edge
+    RESET_REBOOT = "reset_reboot"  # device clock or edge count went backwards
+    RESET_RESTART = "reset_restart"  # edges consistent among themselves but not with the fit: re-locked
+
+
+@dataclass(frozen=True, slots=True)
+class PpsEstimate:
+    """State of the PPS mapping. ``utc_label_s`` is the UTC second of the edge at ``ref_device_us`` (0 = unlabelled)."""
+
+    locked: bool
+    labelled: bool
+    n_edges: int
+    ref_device_us: float
+    utc_label_s: int
+    drift_ppm: float  # device clock rate relative to UTC (+ = device gains)
+    residual_rms_us: float
+    uncertainty_us: float
+    rejected: int
+    relabelled: int
+    resets: int
+
+    def to_dict(self) -> dict[str, float | int | bool]:
+        return asdict(self)
+
+
+@dataclass(frozen=True, slots=True)
+class _PpsLine:
+    k_ref: int  # second index of the newest edge
+    t_ref: float  # fitted device time [us] of that edge
+    slope: float  # device us per UTC second
+    rms: float  # residual rms [us]
+    sxx: float  # sum of squared second offsets (for the line's leverage)
+    mean_x: float  # mean second offset from k_ref
+
+
+class PpsUtcMapper:
+    """Device clock [us] -> UTC [us since the Unix epoch] from GPS PPS edges on the device clock.
+
+    Each PPS edge marks a whole UTC second; which one comes from a coarse UTC (the host's UTC
+    estimate mapped to the edge, or HELLO's ``rtc_utc_us_at_boot + t_us``) that must be right to
+    within +-0.4 s. A line (least squares, device time against the edge's second index) over
+    the last ``max_edges`` edges averages the 1 us stamp quantisation and the interrupt latency.
+    Edges not a whole number of seconds after the last accepted edge (within ``tolerance_us``
+    before the fit exists, ``locked_tolerance_us`` after) are rejected; ``lock_edges`` accepted
+    edges give lock, lost when no edge came for ``lost_after_s`` (``locked(device_us)``).
+    """
+
+    def __init__(
+        self,
+        *,
+        max_edges: int = 16,
+        lock_edges: int = 3,
+        tolerance_us: float = 500.0,
+        locked_tolerance_us: float = 50.0,
+        lost_after_s: float = 2.5,
+        pps_offset_ns: float = 0.0,
+        wander_ppm: float = 0.5,
+        max_coarse_uncertainty_us: float = 400_000.0,
+    ) -> None:
+        """``pps_offset_ns``: known delay from the true second to the edge stamp (cable, receiver), subtracted."""
+        if max_edges < 3 or lock_edges < 2:
+            raise ValueError("max_edges >= 3 and lock_edges >= 2")
+        self._max_edges = max_edges
+        self._lock_edges = lock_edges
+        self._tol = tolerance_us
+        self._locked_tol = locked_tolerance_us
+        self._lost_after_us = lost_after_s * 1e6
+        self._offset_us = pps_offset_ns / 1000.0
+        self._wander = wander_ppm * 1e-6
+        self._max_coarse_unc = max_coarse_uncertainty_us
+        self._edges: deque[tuple[int, float]] = deque()  # (second index since the first edge, device us centred)
+        self._line: _PpsLine | None = None
+        self._label0: int | None = None  # UTC second of index 0
+        self._last_count: int | None = None
+        self._run = 0  # accepted edges since the (re)start
+        self._candidates: list[float] = []  # rejected edges that agree with each other
+        self._relabel_votes: list[int] = []
+        self.rejected = 0
+        self.relabelled = 0
+        self.resets = 0
+
+    def add_pps(
+        self,
+        device_us: int,
+        pps_count: int,
+        coarse_utc_us: float | None = None,
+        coarse_uncertainty_us: float = 0.0,
+    ) -> PpsStatus:
+        """One PPS message: edge [us, device clock], edges since boot, optional coarse UTC [us] of that instant.
+
+        ``coarse_uncertainty_us`` above ``max_coarse_uncertainty_us`` means the coarse UTC cannot name
+        the second: the edge still counts for the fit, the label waits for a better one.
+        """
+        t = float(device_us) + 0.5 - self._offset_us  # stamps truncate: centre; remove the known delay
+        status = PpsStatus.ACCEPTED
+        went_back = self._edges and t < self._edges[-1][1]
+        if went_back or (self._last_count is not None and pps_count < self._last_count):
+            self._reset()
+            status = PpsStatus.RESET_REBOOT
+        self._last_count = pps_count
+        if not self._edges:
+            self._edges.append((0, t))
+            self._run = 1
+            self._label(0, coarse_utc_us, coarse_uncertainty_us)
+            return status
+        k_last, t_last = self._edges[-1]
+        rate = self._line.slope if self._line is not None else 1e6
+        dt = t - t_last
+        k = round(dt / rate)
+        tol = self._locked_tol if self._line is not None and len(self._edges) >= self._lock_edges else self._tol
+        if k < 1 or abs(dt - k * rate) > tol:
+            # A glitch (noise edge, bounce) or the receiver re-acquired with another phase.
+            self.rejected += 1
+            if self._restart_if_consistent(t):
+                self._label(len(self._edges) - 1, coarse_utc_us, coarse_uncertainty_us)
+                return PpsStatus.RESET_RESTART
+            return PpsStatus.REJECTED_INTERVAL
+        self._candidates.clear()
+        self._edges.append((k_last + k, t))
+        while len(self._edges) > self._max_edges:
+            self._edges.popleft()
+        self._run += 1
+        self._refit()
+        self._label(k_last + k, coarse_utc_us, coarse_uncertainty_us)
+        return status
+
+    def _restart_if_consistent(self, t: float) -> bool:
+        """Three rejected edges in a row, 1 s apart among themselves: restart the fit on them."""
+        if self._candidates and abs(t - self._candidates[-1] - 1e6) > self._tol:
+            self._candidates.clear()
+        self._candidates.append(t)
+        if len(self._candidates) < 3:
+            return False
+        cands = list(self._candidates)
+        self._reset()
+        for i, tc in enumerate(cands):
+            self._edges.append((i, tc))
+        self._run = len(cands)
+        self._refit()
+        return True
+
+    def reset(self) -> None:
+        """Forget every edge (e.g. HELLO says the device rebooted)."""
+        self._reset()
+        self._last_count = None
+
+    def _reset(self) -> None:
+        self._edges.clear()
+        self._line = None
+        self._label0 = None
+        self._run = 0
+        self._candidates.clear()
+        self._relabel_votes.clear()
+        self.resets += 1
+
+    def _label(self, k: int, coarse_utc_us: float | None, unc_us: float) -> None:
+        if coarse_utc_us is None or unc_us > self._max_coarse_unc:
+            return
+        label0 = round(coarse_utc_us / 1e6) - k  # the edge is at a whole second; the coarse UTC names it
+        if self._label0 is None:
+            self._label0 = label0
+            return
+        if label0 == self._label0:
+            self._relabel_votes.clear()
+            return
+        # Three consistent disagreements in a row: the first label came from a bad coarse UTC.
+        if self._relabel_votes and self._relabel_votes[-1] != label0:
+            self._relabel_votes.clear()
+        self._relabel_votes.append(label0)
+        if len(self._relabel_votes) >= 3:
+            self._label0 = label0
+            self._relabel_votes.clear()
+            self.relabelled += 1
+
+    def _refit(self) -> None:
+        n = len(self._edges)
+        if n < 2:
+            self._line = None
+            return
+        k_ref, t_last = self._edges[-1]
+        xs = [float(k - k_ref) for k, _ in self._edges]
+        ys = [t - t_last for _, t in self._edges]
+        mx = sum(xs) / n
+        my = sum(ys) / n
+        sxx = sum((x - mx) ** 2 for x in xs)
+        slope = sum((x - mx) * (y - my) for x, y in zip(xs, ys, strict=True)) / sxx
+        intercept = my - slope * mx
+        res = [y - (intercept + slope * x) for x, y in zip(xs, ys, strict=True)]
+        rms = math.sqrt(sum(r * r for r in res) / (n - 2)) if n > 2 else 0.0
+        self._line = _PpsLine(k_ref, t_last + intercept, slope, rms, sxx, mx)
+
+    def locked(self, device_us: float | None = None) -> bool:
+        """Lock: ``lock_edges`` good edges and, if ``device_us`` [device clock] is given, the last one recent."""
+        if self._line is None or self._run < self._lock_edges:
+            return False
+        return device_us is None or float(device_us) - self._edges[-1][1] <= self._lost_after_us
+
+    @property
+    def labelled(self) -> bool:
+        return self._label0 is not None
+
+    def _require(self) -> tuple[_PpsLine, int]:
+        if self._line is None or self._label0 is None:
+            raise ClockNotSyncedError("no labelled PPS fit yet (needs two edges and a coarse UTC)")
+        return self._line, self._label0
+
+    def device_to_utc_us(self, device_us: float) -> float:
+        """UTC [us since the Unix epoch] of a device time [us] (a float: ~0.25 us steps at today's epoch)."""
+        return self.device_to_utc_ns(device_us) / 1000.0
+
+    def device_to_utc_ns(self, device_us: float) -> int:
+        """UTC [ns since the Unix epoch] of a device time [us], exact integer arithmetic for the seconds."""
+        line, label0 = self._require()
+        sec = (float(device_us) - line.t_ref) / line.slope  # UTC seconds after the newest edge
+        whole = math.floor(sec)
+        return (label0 + line.k_ref + whole) * 1_000_000_000 + round((sec - whole) * 1e9)
+
+    def utc_to_device_us(self, utc_us: float) -> float:
+        """Device time [us] of a UTC [us since the Unix epoch]."""
+        line, label0 = self._require()
+        sec = utc_us / 1e6 - (label0 + line.k_ref)
+        return line.t_ref + sec * line.slope
+
+    def uncertainty_us(self, device_us: float) -> float:
+        """About a 95 % bound [us]: 2 sigma of the fitted line there, + 0.5 us stamp step, + wander past the edges."""
+        line, _ = self._require()
+        n = len(self._edges)
+        sigma = max(line.rms, 0.29)  # never below the 1 us truncation's own spread (1/sqrt(12))
+        x = (float(device_us) - line.t_ref) / line.slope
+        lever = 1.0 / n + (x - line.mean_x) ** 2 / line.sxx
+        outside = max(float(device_us) - self._edges[-1][1], self._edges[0][1] - float(device_us), 0.0)
+        return 2.0 * sigma * math.sqrt(lever) + 0.5 + self._wander * outside
+
+    def estimate(self) -> PpsEstimate:
+        """State for the log."""
+        if self._line is None:
+            return PpsEstimate(
+                False, False, len(self._edges), 0.0, 0, 0.0, 0.0, math.inf, self.rejected, self.relabelled, self.resets
+            )
+        line = self._line
+        return PpsEstimate(
+            locked=self.locked(),
+            labelled=self._label0 is not None,
+            n_edges=len(self._edges),
+            ref_device_us=line.t_ref,
+            utc_label_s=(self._label0 + line.k_ref) if self._label0 is not None else 0,
+            drift_ppm=(line.slope / 1e6 - 1.0) * 1e6,
+            residual_rms_us=line.rms,
+            uncertainty_us=self.uncertainty_us(line.t_ref) if self._label0 is not None else math.inf,
+            rejected=self.rejected,
+            relabelled=self.relabelled,
+            resets=self.resets,
+        )

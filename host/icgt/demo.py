@@ -1,0 +1,234 @@
+"""`make demo` / `icgt demo`: a whole flight on simulated hardware, scored against ground truth.
+
+1. start the scenario's simulated device, autopilot and camera (`icgt sim`);
+2. start `icgt record` on them as a user would (a separate process, real serial and UDP links);
+3. act as the ground station: wait for the camera component, ask for CAMERA_INFORMATION, send
+   MAV_CMD_IMAGE_START_CAPTURE and, later, MAV_CMD_IMAGE_STOP_CAPTURE, counting the ACKs and the
+   CAMERA_IMAGE_CAPTURED messages;
+4. stop the recorder (SIGTERM, as systemd would), stop the simulator (which writes the truth and
+   the camera card) and print the summary; everything lands in the output directory.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from pymavlink import mavutil
+
+from icgt.errors import IcgtError
+from icgt.sim.evaluate import evaluate, read_frames, read_truth
+from icgt.sim.scenario import Scenario, load_scenario
+from icgt.sim.session import SimSession
+
+GCS_SYSTEM = 255
+GCS_COMPONENT = 190
+CAMERA_COMPONENT = 100
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port: int = s.getsockname()[1]
+        return port
+
+
+def recorder_config_text(sc: Scenario, out_dir: Path) -> str:
+    """The recorder configuration a crew would write for this airframe (from the scenario's camera)."""
+    cam, cap, sen = sc.camera, sc.camera.capture, sc.sensors
+    n = sc.structure.normal
+    return f"""# written by icgt demo for scenario {sc.name}
+[device]
+set_rtc = true
+
+[mavlink]
+system_id = 1
+ground_station_systems = [{GCS_SYSTEM}]
+global_position_hz = 50.0
+
+[capture]
+mode = "{cap.mode}"
+interval_s = {(cap.interval_ms if cap.mode == "interval" else 1000.0 / cap.burst_fps) / 1000.0}
+focus_lead_s = {cap.focus_ms / 1000.0}
+burst_s = {cap.burst_ms / 1000.0}
+shutter_pulse_s = 0.02
+
+[sensors]
+imu_rate_hz = {int(sen.imu_rate_hz)}
+range_rate_hz = {int(sen.range_rate_hz)}
+lidar_model = "{sen.lidar_model}"
+
+[camera]
+focal_length_mm = {cam.focal_length_mm}
+sensor_width_mm = {cam.sensor_width_mm}
+image_width_px = {cam.image_width_px}
+image_height_px = {cam.image_height_px}
+mount_roll_deg = {cam.mount_roll_deg}
+mount_pitch_deg = {cam.mount_pitch_deg}
+mount_yaw_deg = {cam.mount_yaw_deg}
+lever_arm_body_m = [{cam.lever_arm_m[0]}, {cam.lever_arm_m[1]}, {cam.lever_arm_m[2]}]
+gimbal_stabilised = {"true" if cam.stabilised else "false"}
+surface_normal_enu = [{n[0]}, {n[1]}, {n[2]}]
+
+[output]
+dir = "{out_dir}"
+chunk_interval_s = 1.0
+"""
+
+
+class GroundStation:
+    """A minimal pymavlink ground station talking to the camera through the autopilot's routing."""
+
+    def __init__(self, url: str) -> None:
+        self.conn = mavutil.mavlink_connection(url, source_system=GCS_SYSTEM, source_component=GCS_COMPONENT)
+        self.acks: dict[int, int] = {}
+        self.images: list[Any] = []
+        self.camera_info: Any = None
+        self.camera_seen = False
+
+    def pump(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.conn.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            stop = min(end, time.monotonic() + 1.0)
+            while time.monotonic() < stop:
+                msg = self.conn.recv_match(blocking=True, timeout=0.1)
+                if msg is None or msg.get_srcComponent() != CAMERA_COMPONENT:
+                    continue
+                kind = msg.get_type()
+                if kind == "HEARTBEAT":
+                    self.camera_seen = True
+                elif kind == "COMMAND_ACK":
+                    self.acks[int(msg.command)] = int(msg.result)
+                elif kind == "CAMERA_IMAGE_CAPTURED":
+                    self.images.append(msg)
+                elif kind == "CAMERA_INFORMATION":
+                    self.camera_info = msg
+
+    def command(self, command: int, *params: float) -> None:
+        p = [*params, 0, 0, 0, 0, 0, 0, 0][:7]
+        self.conn.mav.command_long_send(1, CAMERA_COMPONENT, command, 0, *p)
+
+    def close(self) -> None:
+        self.conn.close()
+
+
+def _fmt(p: dict[str, Any], unit: str, scale: float = 1.0) -> str:
+    if not p["n"]:
+        return "n/a"
+    return f"p50 {p['p50'] * scale:.3g} / p95 {p['p95'] * scale:.3g} / max {p['max'] * scale:.3g} {unit} (n={p['n']})"
+
+
+def run_demo(scenario_name: str, out_dir: Path) -> dict[str, Any]:
+    sc = load_scenario(scenario_name)
+    out_dir = out_dir.resolve()
+    for stale in ("sim", "recording"):
+        shutil.rmtree(out_dir / stale, ignore_errors=True)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rec_dir = out_dir / "recording"
+    config_path = out_dir / "recorder.toml"
+    config_path.write_text(recorder_config_text(sc, rec_dir))
+    mav_port, gcs_port = free_udp_port(), free_udp_port()
+    print(f"scenario {sc.name}: {sc.description} ({sc.duration_s:.0f} s)", flush=True)
+    session = SimSession(sc, out_dir / "sim", mavlink_port=mav_port, gcs_port=gcs_port)
+    urls = session.start()
+    socket_path = out_dir / "recorder.sock"
+    recorder_log = (out_dir / "recorder.log").open("w")
+    recorder = subprocess.Popen(
+        [sys.executable, "-m", "icgt.cli", "record", "--config", str(config_path), "--device", urls.device,
+         "--mavlink", urls.mavlink, "--out", str(rec_dir), "--socket", str(socket_path)],
+        stdout=recorder_log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )  # fmt: skip
+    gcs = GroundStation(urls.gcs)
+    summary: dict[str, Any] = {}
+    try:
+        print(f"recorder: icgt record --device {urls.device} --mavlink {urls.mavlink}", flush=True)
+        cap = sc.camera.capture
+        gcs.pump(max(0.5, min(cap.start_s, 3.0) - session.tau_s))
+        gcs.command(mavutil.mavlink.MAV_CMD_REQUEST_MESSAGE, mavutil.mavlink.MAVLINK_MSG_ID_CAMERA_INFORMATION)
+        gcs.pump(max(0.2, cap.start_s - session.tau_s))
+        interval_s = cap.interval_ms / 1000.0 if cap.mode == "interval" else 1.0 / cap.burst_fps
+        print(f"ground station: start capture at tau {session.tau_s:.1f} s", flush=True)
+        gcs.command(mavutil.mavlink.MAV_CMD_IMAGE_START_CAPTURE, 0, interval_s, 0, 0)
+        stop_at = cap.stop_s if cap.stop_s is not None else sc.duration_s - 2.0
+        gcs.pump(max(0.0, stop_at - session.tau_s))
+        print(f"ground station: stop capture at tau {session.tau_s:.1f} s", flush=True)
+        gcs.command(mavutil.mavlink.MAV_CMD_IMAGE_STOP_CAPTURE, 0)
+        gcs.pump(max(1.5, sc.duration_s - session.tau_s))
+    finally:
+        if recorder.poll() is None:
+            recorder.send_signal(signal.SIGTERM)
+        try:
+            recorder.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            recorder.kill()
+            recorder.wait()
+        recorder_log.close()
+        gcs.close()
+        session.stop()
+    mcaps = sorted(rec_dir.glob("*.mcap"))
+    if recorder.returncode != 0 or not mcaps:
+        raise IcgtError(f"the recorder failed (exit {recorder.returncode}); see {out_dir / 'recorder.log'}")
+    mcap_path = mcaps[-1]
+    frames = read_frames(mcap_path)
+    truth = read_truth(session.files.truth_exposures)
+    result = evaluate(sc, frames, truth)
+    images = sorted(session.files.card.glob("*.JPG"))
+    start_ack = gcs.acks.get(mavutil.mavlink.MAV_CMD_IMAGE_START_CAPTURE)
+    stop_ack = gcs.acks.get(mavutil.mavlink.MAV_CMD_IMAGE_STOP_CAPTURE)
+    summary = {
+        **result,
+        "mcap": str(mcap_path),
+        "truth": str(session.files.truth_exposures),
+        "camera_card_images": len(images),
+        "ground_station": {
+            "camera_heartbeat_seen": gcs.camera_seen,
+            "camera_information_received": gcs.camera_info is not None,
+            "start_capture_ack": start_ack,
+            "stop_capture_ack": stop_ack,
+            "camera_image_captured_received": len(gcs.images),
+        },
+    }
+    summary["ok"] = bool(
+        start_ack == mavutil.mavlink.MAV_RESULT_ACCEPTED
+        and stop_ack == mavutil.mavlink.MAV_RESULT_ACCEPTED
+        and result["matched"] > 0
+        and result["exposures_missing_from_log"] == 0
+        and result["frames_without_exposure_not_flagged"] == 0
+    )
+    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    gs = summary["ground_station"]
+    print(
+        "\n".join(
+            [
+                "",
+                f"== ICGT demo: {sc.name} ==",
+                f"frames recorded           {result['frames']} ({result['matched']} matched to true exposures, "
+                f"{result['frames_without_exposure']} triggers the camera ignored, all flagged)",
+                f"true exposures            {result['true_exposures']} ({result['exposures_missing_from_log']} "
+                "missing from the log)",
+                f"images on the camera card {len(images)}",
+                f"ground station            start ACK {gs['start_capture_ack']}, stop ACK {gs['stop_capture_ack']}, "
+                f"{gs['camera_image_captured_received']} CAMERA_IMAGE_CAPTURED",
+                f"geotag error (3D)         {_fmt(result['geotag_error_cm'], 'cm')}",
+                f"  horizontal              {_fmt(result['geotag_horizontal_error_cm'], 'cm')}",
+                f"  timing part             {_fmt(result['timing_part_of_geotag_error_cm'], 'cm')}",
+                f"mid-exposure time error   {_fmt(result['mid_exposure_time_error_ms'], 'us', 1000.0)}"
+                " (device->host clock)",
+                f"UTC error                 {_fmt(result['utc_error_ms'], 'ms')}",
+                f"quality flags             {result['flags']}",
+                f"results                   {out_dir} (summary.json, recording/*.mcap, sim/truth_*.jsonl, sim/card/)",
+                f"demo {'OK' if summary['ok'] else 'FAILED'}",
+            ]
+        ),
+        flush=True,
+    )
+    return summary

@@ -1,0 +1,429 @@
+"""Geotag every exposure at mid-exposure: time on three clocks, pose interpolated, quality flagged.
+
+The geotagger holds exposures until the autopilot sample that follows mid-exposure has
+arrived (position and attitude are interpolated between the samples on either side, not
+copied from the latest one as PX4 and ArduPilot do), then emits a FrameRecord. If the later
+sample does not come within `max_wait_ms` the frame is emitted anyway, held from the earlier
+sample and flagged, so nothing is ever dropped.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from icgt.geodesy import LocalFrame, q_from_euler_zyx, q_multiply, q_rotate, q_slerp, q_to_euler_zyx
+from icgt.geotag.record import FrameFlag, FrameRecord, PositionSource
+from icgt.mavlink.telemetry import AttitudeSample, FusedPositionSample, GpsSample, TelemetryBuffer, TelemetryStore
+from icgt.protocol.messages import Exposure, ExposureFlags, Imu, Range, RangeFlags
+
+GPS_FIX_3D = 3
+
+
+class DeviceClock(Protocol):
+    """Device clock [us] -> host CLOCK_MONOTONIC [ns] (icgt.clocks.DeviceClockFilter)."""
+
+    def device_to_host_ns(self, device_us: float) -> int: ...
+    def uncertainty_ns(self, device_us: float) -> int: ...
+    @property
+    def settled(self) -> bool: ...
+
+
+class AutopilotClock(Protocol):
+    """Host CLOCK_MONOTONIC [ns] -> autopilot boot clock [us]."""
+
+    def host_to_autopilot_us(self, host_ns: int) -> float | None: ...
+
+
+class UtcSource(Protocol):
+    """Device clock [us] -> UTC [us] with an uncertainty and the name of the source."""
+
+    def utc_at(self, device_us: float, host_ns: int) -> tuple[int, float, str] | None: ...
+
+
+@dataclass(frozen=True)
+class GeotagConfig:
+    """Camera, mounting and quality limits (the recorder's config file, [camera] and [geotag])."""
+
+    focal_length_mm: float = 35.0
+    sensor_width_mm: float = 35.9
+    image_width_px: int = 7952
+    image_height_px: int = 5304
+    mount_roll_deg: float = 0.0  # camera relative to the body, applied after "camera looks forward"
+    mount_pitch_deg: float = 0.0
+    mount_yaw_deg: float = 0.0
+    lever_arm_body_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # camera from the autopilot (FRD)
+    gimbal_stabilised: bool = False  # a gimbal holds the camera level: only the body's yaw turns it
+    range_min_m: float = 0.5
+    range_max_m: float = 40.0
+    range_stale_ms: float = 50.0
+    stale_pose_ms: float = 100.0
+    max_wait_ms: float = 500.0
+    blur_limit_px: float = 1.0
+    surface_normal_enu: tuple[float, float, float] | None = None  # the structure's face, if known
+    origin: tuple[float, float, float] | None = None  # ENU origin lat, lon, alt MSL; else the first fix
+
+    @property
+    def pixel_pitch_mm(self) -> float:
+        return self.sensor_width_mm / self.image_width_px
+
+    @property
+    def focal_length_px(self) -> float:
+        return self.focal_length_mm / self.pixel_pitch_mm
+
+
+# Camera frame: x right, y down, z forward (optical axis). Body frame FRD. The base alignment
+# makes the camera look along the body's x axis; the mounting angles rotate it from there.
+_Q_CAM_TO_BODY_BASE = np.array([0.5, 0.5, 0.5, 0.5])
+
+
+def camera_to_body_quaternion(cfg: GeotagConfig) -> np.ndarray:
+    """Rotation camera -> body (Hamilton, w first)."""
+    mount = q_from_euler_zyx(
+        math.radians(cfg.mount_roll_deg), math.radians(cfg.mount_pitch_deg), math.radians(cfg.mount_yaw_deg)
+    )
+    return np.asarray(q_multiply(mount, _Q_CAM_TO_BODY_BASE))
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceSample:
+    """An IMU or range sample keyed on the device clock (TelemetryBuffer keys on `boot_us`)."""
+
+    boot_us: int  # the device clock counts from the device's boot
+    msg: Imu | Range
+
+
+@dataclass
+class _Pending:
+    seq: int
+    exposure: Exposure
+    rx_host_ns: int
+    mid_device_us: int
+    start_device_us: int
+    flags: list[str] = field(default_factory=list)
+
+
+class Geotagger:
+    """Pairs device exposures with autopilot telemetry. Thread-safe: feed from any thread, poll from one."""
+
+    def __init__(
+        self,
+        telemetry: TelemetryStore,
+        device_clock: DeviceClock,
+        autopilot_clock: AutopilotClock,
+        utc: UtcSource,
+        config: GeotagConfig,
+        emit: Callable[[FrameRecord], None],
+    ) -> None:
+        self._tm = telemetry
+        self._dev = device_clock
+        self._ap = autopilot_clock
+        self._utc = utc
+        self._cfg = config
+        self._emit = emit
+        self._q_cam_body = camera_to_body_quaternion(config)
+        self._imu: TelemetryBuffer[DeviceSample] = TelemetryBuffer(512)
+        self._range: TelemetryBuffer[DeviceSample] = TelemetryBuffer(2048)
+        self._pending: deque[_Pending] = deque()
+        self._lock = threading.Lock()
+        self._seq = 0
+        self._frame: LocalFrame | None = LocalFrame(*config.origin) if config.origin else None
+        self.origin: tuple[float, float, float] | None = config.origin
+
+    # ------------------------------------------------------------------ inputs
+    def add_imu(self, imu: Imu) -> None:
+        self._imu.push(DeviceSample((imu.read_start_t_us + imu.read_end_t_us) // 2, imu))
+
+    def add_range(self, rng: Range) -> None:
+        self._range.push(DeviceSample(rng.acq_start_t_us, rng))
+
+    def add_exposure(self, exposure: Exposure, rx_host_ns: int) -> None:
+        flags: list[str] = []
+        if exposure.feedback_start_t_us and exposure.feedback_end_t_us:
+            start = exposure.feedback_start_t_us
+            mid = start + (exposure.feedback_end_t_us - start) // 2
+        elif exposure.feedback_start_t_us:
+            start = mid = exposure.feedback_start_t_us
+        else:
+            start = mid = exposure.trigger_t_us
+            flags.append(FrameFlag.NO_FEEDBACK.value)
+        if exposure.flags & ExposureFlags.FEEDBACK_MISSING:
+            flags.append(FrameFlag.FEEDBACK_MISSING.value)
+        if exposure.flags & ExposureFlags.UNSOLICITED:
+            flags.append(FrameFlag.UNSOLICITED.value)
+        with self._lock:
+            self._seq += 1
+            self._pending.append(_Pending(self._seq, exposure, rx_host_ns, mid, start, flags))
+
+    # ------------------------------------------------------------------ output
+    def poll(self, now_host_ns: int, *, flush: bool = False) -> int:
+        """Emit every pending frame whose later pose sample has arrived or whose wait ran out.
+
+        `flush` emits everything (at shutdown). Returns the number emitted."""
+        emitted = 0
+        while True:
+            with self._lock:
+                if not self._pending:
+                    return emitted
+                p = self._pending[0]
+            mid_host_ns = self._mid_host_ns(p)
+            waited_ms = (now_host_ns - mid_host_ns) / 1e6
+            if not (flush or waited_ms >= self._cfg.max_wait_ms or self._later_samples_arrived(mid_host_ns)):
+                return emitted
+            record = self._build(p, mid_host_ns)
+            with self._lock:
+                self._pending.popleft()
+            self._emit(record)
+            emitted += 1
+
+    @property
+    def pending(self) -> int:
+        with self._lock:
+            return len(self._pending)
+
+    # ------------------------------------------------------------------ internals
+    def _mid_host_ns(self, p: _Pending) -> int:
+        return self._dev.device_to_host_ns(p.mid_device_us) if self._dev.settled else p.rx_host_ns
+
+    def _later_samples_arrived(self, mid_host_ns: int) -> bool:
+        mid_boot = self._ap.host_to_autopilot_us(mid_host_ns)
+        if mid_boot is None:
+            return False
+        fused = self._tm.fused.latest()
+        att = self._attitude_buffer().latest()
+        return fused is not None and fused.boot_us >= mid_boot and att is not None and att.boot_us >= mid_boot
+
+    def _attitude_buffer(self) -> TelemetryBuffer[AttitudeSample]:
+        # ATTITUDE_QUATERNION carries the estimator's quaternion without the Euler round trip.
+        return self._tm.attitude_quaternion if len(self._tm.attitude_quaternion) else self._tm.attitude
+
+    def _build(self, p: _Pending, mid_host_ns: int) -> FrameRecord:
+        e = p.exposure
+        flags = list(p.flags)
+        settled = self._dev.settled
+        if not settled:
+            flags.append(FrameFlag.CLOCK_UNSYNCED.value)
+        unc_ns = self._dev.uncertainty_ns(p.mid_device_us) if settled else 50_000_000
+        utc = self._utc.utc_at(p.mid_device_us, mid_host_ns)
+        if utc is None:
+            flags.append(FrameFlag.NO_UTC.value)
+        mid_boot = self._ap.host_to_autopilot_us(mid_host_ns)
+
+        pos = self._position(mid_boot, flags)
+        att = self._attitude(mid_boot, flags)
+        imu = self._imu_at(p.mid_device_us)
+        rng = self._range_at(p.mid_device_us, flags)
+
+        lat = lon = alt = None
+        enu: np.ndarray | None = None
+        cam_q = None
+        body_q = att[0] if att else None
+        if pos is not None:
+            enu_body = pos[0]
+            if body_q is not None:
+                lever_ned = q_rotate(body_q, np.asarray(self._cfg.lever_arm_body_m))
+                enu_body = enu_body + np.array([lever_ned[1], lever_ned[0], -lever_ned[2]])
+            enu = enu_body
+            assert self._frame is not None
+            la, lo, al = self._frame.enu_to_geodetic(enu)
+            lat, lon, alt = float(la), float(lo), float(al)
+        if body_q is not None:
+            carrier = body_q
+            if self._cfg.gimbal_stabilised:
+                _, _, body_yaw = q_to_euler_zyx(body_q)
+                carrier = q_from_euler_zyx(0.0, 0.0, float(body_yaw))
+            cam_q = np.asarray(q_multiply(carrier, self._q_cam_body))
+        gps = pos[2] if pos else self._tm.gps.bracket(int(mid_boot) if mid_boot is not None else 0)[0]
+
+        scale = incidence = None
+        if rng is not None and rng[0] is not None:
+            scale = rng[0] * 1000.0 * self._cfg.pixel_pitch_mm / self._cfg.focal_length_mm
+            if cam_q is not None and self._cfg.surface_normal_enu is not None:
+                axis_ned = q_rotate(cam_q, np.array([0.0, 0.0, 1.0]))
+                axis_enu = np.array([axis_ned[1], axis_ned[0], -axis_ned[2]])
+                n = np.asarray(self._cfg.surface_normal_enu, dtype=float)
+                cosang = abs(float(axis_enu @ n)) / float(np.linalg.norm(n))
+                incidence = math.degrees(math.acos(min(1.0, cosang)))
+                scale = scale / max(cosang, 1e-3)  # along the tilt, one pixel covers more surface
+        blur = self._blur_px(imu, pos, e.duration_us, scale)
+        if blur is not None and blur > self._cfg.blur_limit_px:
+            flags.append(FrameFlag.MOTION_BLUR.value)
+        roll = pitch = yaw = None
+        if body_q is not None:
+            r, pt, y = q_to_euler_zyx(body_q)
+            roll, pitch, yaw = math.degrees(float(r)), math.degrees(float(pt)), math.degrees(float(y)) % 360.0
+        imu_msg = imu.msg if imu is not None and isinstance(imu.msg, Imu) else None
+        calib = imu_msg.calib_stat if imu_msg is not None else None
+        if calib is not None and (calib >> 6) & 3 < 3:
+            flags.append(FrameFlag.IMU_UNCALIBRATED.value)
+        return FrameRecord(
+            frame_seq=p.seq,
+            image_index=e.image_index,
+            camera_id=e.camera_id,
+            device_flags=e.flags,
+            trigger_device_us=e.trigger_t_us,
+            start_device_us=p.start_device_us,
+            mid_device_us=p.mid_device_us,
+            duration_us=e.duration_us,
+            mid_host_ns=mid_host_ns,
+            mid_host_uncertainty_ns=unc_ns,
+            time_source=utc[2] if utc else "none",
+            flags=sorted(set(flags)),
+            position_source=(pos[1] if pos else PositionSource.NONE).value,
+            fix_type=gps.fix_type if gps is not None else 0,
+            pose_gap_before_ms=pos[3] if pos else math.inf,
+            pose_gap_after_ms=pos[4] if pos else math.inf,
+            mid_utc_us=utc[0] if utc else None,
+            mid_utc_uncertainty_us=utc[1] if utc else None,
+            lat_deg=lat,
+            lon_deg=lon,
+            alt_msl_m=alt,
+            east_m=float(enu[0]) if enu is not None else None,
+            north_m=float(enu[1]) if enu is not None else None,
+            up_m=float(enu[2]) if enu is not None else None,
+            h_acc_m=gps.h_acc_m if gps is not None else None,
+            v_acc_m=gps.v_acc_m if gps is not None else None,
+            satellites=gps.satellites if gps is not None else None,
+            body_qw=float(body_q[0]) if body_q is not None else None,
+            body_qx=float(body_q[1]) if body_q is not None else None,
+            body_qy=float(body_q[2]) if body_q is not None else None,
+            body_qz=float(body_q[3]) if body_q is not None else None,
+            roll_deg=roll,
+            pitch_deg=pitch,
+            yaw_deg=yaw,
+            cam_qw=float(cam_q[0]) if cam_q is not None else None,
+            cam_qx=float(cam_q[1]) if cam_q is not None else None,
+            cam_qy=float(cam_q[2]) if cam_q is not None else None,
+            cam_qz=float(cam_q[3]) if cam_q is not None else None,
+            imu_qw=imu_msg.quat_w if imu_msg else None,
+            imu_qx=imu_msg.quat_x if imu_msg else None,
+            imu_qy=imu_msg.quat_y if imu_msg else None,
+            imu_qz=imu_msg.quat_z if imu_msg else None,
+            imu_gyro_rad_s=(
+                math.sqrt(imu_msg.gyro_x_rad_s**2 + imu_msg.gyro_y_rad_s**2 + imu_msg.gyro_z_rad_s**2)
+                if imu_msg
+                else None
+            ),
+            imu_calib_sys=(calib >> 6) & 3 if calib is not None else None,
+            imu_calib_gyr=(calib >> 4) & 3 if calib is not None else None,
+            imu_calib_acc=(calib >> 2) & 3 if calib is not None else None,
+            imu_calib_mag=calib & 3 if calib is not None else None,
+            imu_age_ms=(p.mid_device_us - imu.boot_us) / 1000.0 if imu is not None else None,
+            range_m=rng[0] if rng else None,
+            range_age_ms=rng[1] if rng else None,
+            range_valid=rng is not None and rng[0] is not None,
+            scale_mm_per_px=scale,
+            incidence_deg=incidence,
+            blur_px=blur,
+        )
+
+    def _position(
+        self, mid_boot: float | None, flags: list[str]
+    ) -> tuple[np.ndarray, PositionSource, GpsSample | None, float, float] | None:
+        """(ENU of the autopilot at mid, source, GPS sample, gap before [ms], gap after [ms])."""
+        if mid_boot is None:
+            flags.append(FrameFlag.NO_FIX.value)
+            return None
+        t = int(mid_boot)
+        before, after = self._tm.fused.bracket(t)
+        gps, _ = self._tm.gps.bracket(t)
+        if before is None or not before.usable or before.lat_deg is None:
+            flags.append(FrameFlag.NO_FIX.value)
+            return None
+        if self._frame is None:
+            assert before.lon_deg is not None and before.alt_msl_m is not None
+            self.origin = (before.lat_deg, before.lon_deg, before.alt_msl_m)
+            self._frame = LocalFrame(*self.origin)
+        a = self._enu(before)
+        gap_before = (mid_boot - before.boot_us) / 1000.0
+        if after is None or not after.usable:
+            flags.append(FrameFlag.POSE_EXTRAPOLATED.value)
+            enu, gap_after = a, math.inf
+        else:
+            b = self._enu(after)
+            span = after.boot_us - before.boot_us
+            f = 0.0 if span <= 0 else (mid_boot - before.boot_us) / span
+            enu = a + (b - a) * f
+            gap_after = (after.boot_us - mid_boot) / 1000.0
+        if max(gap_before, gap_after) > self._cfg.stale_pose_ms:
+            flags.append(FrameFlag.STALE_POSE.value)
+        source = PositionSource.GPS_3D
+        if gps is not None and gps.fix_type == 6:
+            source = PositionSource.RTK_FIXED
+        elif gps is not None and gps.fix_type == 5:
+            source = PositionSource.RTK_FLOAT
+        return enu, source, gps, gap_before, gap_after
+
+    def _enu(self, s: FusedPositionSample) -> np.ndarray:
+        assert self._frame is not None and s.lat_deg is not None and s.lon_deg is not None
+        assert s.alt_msl_m is not None
+        return np.asarray(self._frame.geodetic_to_enu(s.lat_deg, s.lon_deg, s.alt_msl_m), dtype=float)
+
+    def _attitude(self, mid_boot: float | None, flags: list[str]) -> tuple[np.ndarray] | None:
+        if mid_boot is None:
+            flags.append(FrameFlag.NO_ATTITUDE.value)
+            return None
+        before, after = self._attitude_buffer().bracket(int(mid_boot))
+        if before is None and after is None:
+            flags.append(FrameFlag.NO_ATTITUDE.value)
+            return None
+        if before is None or after is None or after.boot_us == before.boot_us:
+            only = before or after
+            assert only is not None
+            return (np.asarray(only.q_wxyz, dtype=float),)
+        f = (mid_boot - before.boot_us) / (after.boot_us - before.boot_us)
+        return (np.asarray(q_slerp(before.q_wxyz, after.q_wxyz, f), dtype=float),)
+
+    def _imu_at(self, mid_device_us: int) -> DeviceSample | None:
+        before, after = self._imu.bracket(mid_device_us)
+        if before is None or after is None:
+            return before or after
+        return before if mid_device_us - before.boot_us <= after.boot_us - mid_device_us else after
+
+    def _range_at(self, mid_device_us: int, flags: list[str]) -> tuple[float | None, float | None] | None:
+        """(range [m] at mid or None, age of the nearest valid acquisition [ms])."""
+        window_us = int(self._cfg.range_stale_ms * 1000)
+        valid = [
+            s
+            for s in self._range.between(mid_device_us - window_us, mid_device_us + window_us)
+            if isinstance(s.msg, Range) and s.msg.flags & RangeFlags.VALID
+        ]
+        if not valid:
+            flags.append(FrameFlag.RANGE_INVALID.value)
+            return None
+        before = [s for s in valid if s.boot_us <= mid_device_us]
+        after = [s for s in valid if s.boot_us >= mid_device_us]
+        if before and after:
+            a, b = before[-1], after[0]
+            ra, rb = a.msg.distance_cm / 100.0, b.msg.distance_cm / 100.0  # type: ignore[union-attr]
+            f = 0.0 if b.boot_us == a.boot_us else (mid_device_us - a.boot_us) / (b.boot_us - a.boot_us)
+            r = ra + (rb - ra) * f
+            age = min(mid_device_us - a.boot_us, b.boot_us - mid_device_us) / 1000.0
+        else:
+            s = before[-1] if before else after[0]
+            r = s.msg.distance_cm / 100.0  # type: ignore[union-attr]
+            age = abs(mid_device_us - s.boot_us) / 1000.0
+        if not self._cfg.range_min_m <= r <= self._cfg.range_max_m:
+            flags.append(FrameFlag.RANGE_OUT_OF_BAND.value)
+        return r, age
+
+    def _blur_px(
+        self, imu: DeviceSample | None, pos: object, duration_us: int, scale_mm_per_px: float | None
+    ) -> float | None:
+        """Rotation blur = |omega| x exposure x focal length [px] (plus translation when the speed is known)."""
+        if imu is None or not isinstance(imu.msg, Imu) or duration_us <= 0:
+            return None
+        m = imu.msg
+        omega = math.sqrt(m.gyro_x_rad_s**2 + m.gyro_y_rad_s**2 + m.gyro_z_rad_s**2)
+        blur = omega * duration_us * 1e-6 * self._cfg.focal_length_px
+        fused = self._tm.fused.latest()
+        if scale_mm_per_px and fused is not None:
+            speed = math.sqrt(fused.vn_mps**2 + fused.ve_mps**2 + fused.vd_mps**2)
+            blur += speed * duration_us * 1e-6 * 1000.0 / scale_mm_per_px
+        return blur

@@ -1,0 +1,112 @@
+"""The geotagged frame record: everything the inspection pipeline needs about one exposure.
+
+One record per exposure (../shared/BRIEF.md, "What each frame record must carry"). Times are
+given on the three clocks with their uncertainty; the pose is interpolated to mid-exposure;
+quality flags say what to distrust. Written to MCAP on /frames (JSON, schema derived from this
+class) and read back by the ingest tools.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+from typing import Annotated
+
+from icgt.recording.schemas import Doc
+
+
+class PositionSource(enum.StrEnum):
+    """Where the position came from, best first."""
+
+    RTK_FIXED = "rtk_fixed"
+    RTK_FLOAT = "rtk_float"
+    GPS_3D = "gps_3d"  # the autopilot's fused estimate while GPS has a 3D fix
+    VIO = "vio"  # local position only (GPS denied): ENU from the autopilot's local frame
+    NONE = "none"
+
+
+class FrameFlag(enum.StrEnum):
+    """Quality flags; a frame can carry several."""
+
+    NO_FIX = "no_fix"  # no usable 3D position at exposure
+    STALE_POSE = "stale_pose"  # a bracketing pose sample is farther than the stale limit
+    POSE_EXTRAPOLATED = "pose_extrapolated"  # the later sample never came: held from the earlier one
+    NO_ATTITUDE = "no_attitude"
+    CLOCK_UNSYNCED = "clock_unsynced"  # device clock not yet mapped to host time: times are estimates
+    NO_UTC = "no_utc"
+    RANGE_INVALID = "range_invalid"  # no LiDAR return near the exposure
+    RANGE_OUT_OF_BAND = "range_out_of_band"  # outside the configured working distance
+    RANGE_STALE = "range_stale"
+    MOTION_BLUR = "motion_blur"  # predicted blur above the limit
+    NO_FEEDBACK = "no_feedback"  # trigger time only (no hot-shoe line or the camera did not confirm)
+    FEEDBACK_MISSING = "feedback_missing"  # the camera did not confirm this trigger: it may not exist
+    UNSOLICITED = "unsolicited"  # an exposure nobody triggered (manual shot)
+    IMU_UNCALIBRATED = "imu_uncalibrated"
+
+
+@dataclass(frozen=True, slots=True)
+class FrameRecord:
+    """One exposure, geotagged at mid-exposure."""
+
+    frame_seq: Annotated[int, Doc("recorder's running count of frames in this log, from 1")]
+    image_index: Annotated[int, Doc("device's trigger index (0 for an unsolicited exposure)")]
+    camera_id: Annotated[int, Doc("camera port")]
+    device_flags: Annotated[int, Doc("EXPOSURE.flags bitmask as the device sent it (protocol ExposureFlags)")]
+    # --- time
+    trigger_device_us: Annotated[int, Doc("shutter line asserted, device clock (0 if unsolicited)", unit="us")]
+    start_device_us: Annotated[int, Doc("exposure start (hot-shoe edge, else trigger), device clock", unit="us")]
+    mid_device_us: Annotated[int, Doc("mid-exposure, device clock", unit="us")]
+    duration_us: Annotated[int, Doc("exposure duration from the feedback pulse (0 unknown)", unit="us")]
+    mid_host_ns: Annotated[int, Doc("mid-exposure, host CLOCK_MONOTONIC", unit="ns")]
+    mid_host_uncertainty_ns: Annotated[int, Doc("bound on the device->host mapping error at mid", unit="ns")]
+    time_source: Annotated[str, Doc("what mid_utc is derived from: pps, autopilot_gps, host_realtime")]
+    flags: Annotated[list[str], Doc("quality flags (FrameFlag values)")]
+    position_source: Annotated[str, Doc("PositionSource value")]
+    fix_type: Annotated[int, Doc("GPS_RAW_INT.fix_type of the last GPS sample before mid (0-1 none, 3 3D, 6 RTK)")]
+    pose_gap_before_ms: Annotated[float, Doc("mid minus the earlier bracketing position sample", unit="ms")]
+    pose_gap_after_ms: Annotated[float, Doc("later bracketing position sample minus mid", unit="ms")]
+    mid_utc_us: Annotated[int | None, Doc("mid-exposure, UTC since the Unix epoch", unit="us")] = None
+    mid_utc_uncertainty_us: Annotated[float | None, Doc("bound on the UTC error at mid", unit="us")] = None
+    # --- position (WGS84, MSL altitude) and local ENU (origin in the log's metadata)
+    lat_deg: Annotated[float | None, Doc("latitude WGS84", unit="deg")] = None
+    lon_deg: Annotated[float | None, Doc("longitude WGS84", unit="deg")] = None
+    alt_msl_m: Annotated[float | None, Doc("altitude above mean sea level", unit="m")] = None
+    east_m: Annotated[float | None, Doc("camera position east of the ENU origin", unit="m")] = None
+    north_m: Annotated[float | None, Doc("camera position north of the ENU origin", unit="m")] = None
+    up_m: Annotated[float | None, Doc("camera position above the ENU origin", unit="m")] = None
+    h_acc_m: Annotated[float | None, Doc("GPS horizontal accuracy", unit="m")] = None
+    v_acc_m: Annotated[float | None, Doc("GPS vertical accuracy", unit="m")] = None
+    satellites: Annotated[int | None, Doc("satellites visible")] = None
+    # --- attitude (vehicle body -> NED, and the camera after the mounting rotation)
+    body_qw: Annotated[float | None, Doc("vehicle attitude quaternion w (body->NED)")] = None
+    body_qx: Annotated[float | None, Doc("vehicle attitude quaternion x")] = None
+    body_qy: Annotated[float | None, Doc("vehicle attitude quaternion y")] = None
+    body_qz: Annotated[float | None, Doc("vehicle attitude quaternion z")] = None
+    roll_deg: Annotated[float | None, Doc("vehicle roll", unit="deg")] = None
+    pitch_deg: Annotated[float | None, Doc("vehicle pitch", unit="deg")] = None
+    yaw_deg: Annotated[float | None, Doc("vehicle yaw, clockwise from north", unit="deg")] = None
+    cam_qw: Annotated[
+        float | None, Doc("camera attitude quaternion w (camera->NED; camera x right, y down, z forward)")
+    ] = None
+    cam_qx: Annotated[float | None, Doc("camera attitude quaternion x")] = None
+    cam_qy: Annotated[float | None, Doc("camera attitude quaternion y")] = None
+    cam_qz: Annotated[float | None, Doc("camera attitude quaternion z")] = None
+    # --- BNO055 at exposure
+    imu_qw: Annotated[float | None, Doc("BNO055 orientation quaternion w (its fusion frame)")] = None
+    imu_qx: Annotated[float | None, Doc("BNO055 quaternion x")] = None
+    imu_qy: Annotated[float | None, Doc("BNO055 quaternion y")] = None
+    imu_qz: Annotated[float | None, Doc("BNO055 quaternion z")] = None
+    imu_gyro_rad_s: Annotated[float | None, Doc("BNO055 angular rate magnitude at exposure", unit="rad/s")] = None
+    imu_calib_sys: Annotated[int | None, Doc("BNO055 system calibration 0..3")] = None
+    imu_calib_gyr: Annotated[int | None, Doc("BNO055 gyroscope calibration 0..3")] = None
+    imu_calib_acc: Annotated[int | None, Doc("BNO055 accelerometer calibration 0..3")] = None
+    imu_calib_mag: Annotated[int | None, Doc("BNO055 magnetometer calibration 0..3")] = None
+    imu_age_ms: Annotated[float | None, Doc("mid minus the nearest IMU sample time", unit="ms")] = None
+    # --- LiDAR at exposure
+    range_m: Annotated[float | None, Doc("LiDAR distance at mid-exposure (interpolated)", unit="m")] = None
+    range_age_ms: Annotated[float | None, Doc("mid minus the nearest valid range acquisition", unit="ms")] = None
+    range_valid: Annotated[bool, Doc("a valid LiDAR return bracketed the exposure")] = False
+    # --- derived
+    scale_mm_per_px: Annotated[float | None, Doc("ground sample distance at the image centre", unit="mm/px")] = None
+    incidence_deg: Annotated[float | None, Doc("angle between optical axis and surface normal", unit="deg")] = None
+    blur_px: Annotated[float | None, Doc("predicted motion blur (rotation and translation)", unit="px")] = None

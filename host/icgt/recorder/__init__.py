@@ -1,0 +1,6 @@
+"""The synchroniser that records a flight: `icgt record`."""
+
+from icgt.recorder.config import ConfigError, RecorderConfig, load_config
+from icgt.recorder.recorder import Recorder, RecorderStatus
+
+__all__ = ["ConfigError", "Recorder", "RecorderConfig", "RecorderStatus", "load_config"]

@@ -1,0 +1,171 @@
+"""What goes on which MCAP topic, and the self-describing schemas of the raw streams.
+
+Raw device messages and raw MAVLink messages are recorded as they came, one topic per
+message type, so poses can be recomputed later without re-flying. Their JSON Schemas are
+derived from the protocol table (device) and from pymavlink's field lists (MAVLink).
+"""
+
+from __future__ import annotations
+
+import base64
+import math
+from dataclasses import fields
+from typing import Any
+
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
+from foxglove_schemas_protobuf.LocationFix_pb2 import LocationFix
+from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+
+from icgt.geotag import FrameRecord
+from icgt.protocol import Message
+from icgt.protocol.messages import FIELD_TYPES
+
+FRAMES = "/frames"
+FRAMES_LOCATION = "/frames/location"
+FRAMES_POSE = "/frames/pose"
+TF = "/tf"
+LOG = "/icgt/log"
+LINK_EVENTS = "/icgt/link_events"
+CLOCK_DEVICE = "/clock/device"
+CLOCK_DEVICE_EXCHANGES = "/clock/device/exchanges"
+CLOCK_AUTOPILOT = "/clock/autopilot"
+CLOCK_UTC = "/clock/utc"
+WORLD_FRAME = "enu"
+CAMERA_FRAME = "camera"
+
+
+def device_topic(name: str) -> str:
+    return f"/device/{name.lower()}"
+
+
+def mavlink_topic(name: str) -> str:
+    return f"/mavlink/{name.lower()}"
+
+
+_DEVICE_JSON_TYPES = {"f32": "number", "f64": "number"}
+
+
+def device_schema(cls: type[Message]) -> dict[str, Any]:
+    """JSON Schema of a raw device message topic: its fields (units from the table) plus the header."""
+    props: dict[str, Any] = {
+        "seq": {"type": "integer", "description": "device frame sequence number"},
+        "frame_flags": {"type": "integer", "description": "frame header flags"},
+        "host_rx_ns": {"type": "integer", "description": "host CLOCK_MONOTONIC when the bytes arrived [ns]"},
+    }
+    for name, wire in FIELD_TYPES[cls.NAME]:
+        kind = "string" if wire.startswith(("char", "str")) else _DEVICE_JSON_TYPES.get(wire, "integer")
+        props[name] = {"type": kind, "description": f"{wire} [{cls.UNITS[name]}]"}
+    required = [k for k, v in props.items() if v["type"] != "number"]
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": f"icgt.device.{cls.NAME}",
+        "description": (cls.__doc__ or "").strip(),
+        "type": "object",
+        "properties": props,
+        "required": required,
+    }
+
+
+def device_payload(msg: Message, seq: int, frame_flags: int, host_rx_ns: int) -> dict[str, Any]:
+    """A device message as a JSON object; non-finite floats are left out (JSON has none)."""
+    out: dict[str, Any] = {"seq": seq, "frame_flags": frame_flags, "host_rx_ns": host_rx_ns}
+    for f in fields(msg):  # type: ignore[arg-type]
+        v = getattr(msg, f.name)
+        if isinstance(v, float) and not math.isfinite(v):
+            continue
+        out[f.name] = v
+    return out
+
+
+def _mavlink_json_type(fieldtype: str) -> dict[str, Any]:
+    base = fieldtype.split("[")[0]
+    if base == "char":
+        return {"type": "string"}
+    scalar = {"type": "number"} if base in ("float", "double") else {"type": "integer"}
+    if "[" in fieldtype:
+        return {"type": "array", "items": scalar}
+    return scalar
+
+
+def mavlink_schema(msg: Any) -> dict[str, Any]:
+    """JSON Schema of a raw MAVLink topic, from pymavlink's field names and C types."""
+    props: dict[str, Any] = {
+        "src_system": {"type": "integer"},
+        "src_component": {"type": "integer"},
+        "host_rx_ns": {"type": "integer", "description": "host CLOCK_MONOTONIC at receipt [ns]"},
+        "raw": {"type": "string", "contentEncoding": "base64", "description": "the MAVLink frame as received"},
+    }
+    for name, ftype in zip(msg.fieldnames, msg.fieldtypes, strict=True):
+        props[name] = {**_mavlink_json_type(ftype), "description": ftype}
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": f"mavlink.{msg.get_type()}",
+        "type": "object",
+        "properties": props,
+    }
+
+
+def mavlink_payload(msg: Any, host_rx_ns: int) -> dict[str, Any]:
+    out: dict[str, Any] = {
+        "src_system": msg.get_srcSystem(),
+        "src_component": msg.get_srcComponent(),
+        "host_rx_ns": host_rx_ns,
+        "raw": base64.b64encode(bytes(msg.get_msgbuf())).decode(),
+    }
+    for name in msg.fieldnames:
+        v = getattr(msg, name)
+        if isinstance(v, bytes):
+            v = v.decode("utf-8", "replace").rstrip("\0")
+        elif isinstance(v, float) and not math.isfinite(v):
+            continue
+        elif isinstance(v, list):
+            v = [x for x in v if not (isinstance(x, float) and not math.isfinite(x))]
+        out[name] = v
+    return out
+
+
+def location_fix(rec: FrameRecord, utc_ns: int) -> LocationFix | None:
+    """The frame's camera position for Foxglove's map panel."""
+    if rec.lat_deg is None or rec.lon_deg is None or rec.alt_msl_m is None:
+        return None
+    fix = LocationFix(frame_id=CAMERA_FRAME, latitude=rec.lat_deg, longitude=rec.lon_deg, altitude=rec.alt_msl_m)
+    fix.timestamp.FromNanoseconds(utc_ns)
+    h = rec.h_acc_m if rec.h_acc_m is not None else 0.0
+    v = rec.v_acc_m if rec.v_acc_m is not None else 0.0
+    fix.position_covariance.extend([h * h, 0, 0, 0, h * h, 0, 0, 0, v * v])
+    fix.position_covariance_type = LocationFix.DIAGONAL_KNOWN if rec.h_acc_m is not None else LocationFix.UNKNOWN
+    return fix
+
+
+def _enu_quaternion(rec: FrameRecord) -> tuple[float, float, float, float] | None:
+    """Camera attitude camera->ENU (Foxglove's 3D view is ENU) from the record's camera->NED quaternion."""
+    if rec.cam_qw is None or rec.cam_qx is None or rec.cam_qy is None or rec.cam_qz is None:
+        return None
+    # q_enu = q(NED->ENU) * q_ned; NED->ENU is a 180 deg rotation about (1, 1, 0)/sqrt(2).
+    s = math.sqrt(0.5)
+    a = (0.0, s, s, 0.0)
+    b = (rec.cam_qw, rec.cam_qx, rec.cam_qy, rec.cam_qz)
+    return (
+        a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
+        a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+        a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
+        a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0],
+    )
+
+
+def pose_and_transform(rec: FrameRecord, utc_ns: int) -> tuple[PoseInFrame, FrameTransforms] | None:
+    """The camera pose in the local ENU frame, as a pose and as a transform enu -> camera."""
+    q = _enu_quaternion(rec)
+    if q is None or rec.east_m is None or rec.north_m is None or rec.up_m is None:
+        return None
+    pose = PoseInFrame(frame_id=WORLD_FRAME)
+    pose.timestamp.FromNanoseconds(utc_ns)
+    pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = rec.east_m, rec.north_m, rec.up_m
+    o = pose.pose.orientation
+    o.w, o.x, o.y, o.z = q
+    tf = FrameTransform(parent_frame_id=WORLD_FRAME, child_frame_id=CAMERA_FRAME)
+    tf.timestamp.FromNanoseconds(utc_ns)
+    tf.translation.x, tf.translation.y, tf.translation.z = rec.east_m, rec.north_m, rec.up_m
+    tf.rotation.w, tf.rotation.x, tf.rotation.y, tf.rotation.z = q
+    return pose, FrameTransforms(transforms=[tf])

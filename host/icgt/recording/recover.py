@@ -1,0 +1,216 @@
+"""`icgt recover`: turn an unfinished MCAP file (recorder killed, power cut, disk full) into a complete one.
+
+The source is read front to back with the official reader's stream mode (`mcap.stream_reader.StreamReader`)
+through a strict byte source that refuses short reads, so a record cut off by the crash ends the
+reading at the last complete record instead of being half-parsed. Every chunk is checked against its
+CRC and unpacked on its own: a damaged chunk is skipped and counted, the ones after it are still kept.
+Schemas, channels, messages (with their original ids, sequence numbers and times), metadata and
+attachments go into a new file with a summary, chunk and message indexes and statistics.
+Times in the report: nanoseconds since the Unix epoch, as recorded.
+"""
+
+from __future__ import annotations
+
+import os
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, cast
+
+from mcap.exceptions import McapError
+from mcap.records import Attachment, Channel, Chunk, Footer, Header, McapRecord, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
+
+from icgt.recording.writer import LIBRARY, MAGIC, McapFileWriter, RecordingError, iso_utc
+
+
+class _TruncatedError(Exception):
+    """The source ended inside a record."""
+
+
+class _StrictSource:
+    """A read-only byte source that raises instead of returning fewer bytes than asked for.
+
+    mcap's ReadDataStream only notices an empty read, so a record cut off by a crash would come back
+    with short fields; failing the short read keeps the boundary of the last complete record exact.
+    """
+
+    def __init__(self, stream: IO[bytes], size: int) -> None:
+        self._stream = stream
+        self._size = size
+        self.position = 0
+
+    def read(self, n: int = -1) -> bytes:
+        if n > self._size - self.position:  # also keeps a garbage length from allocating gigabytes
+            raise _TruncatedError(f"a {n}-byte read at offset {self.position} runs past the end of the file")
+        data = self._stream.read(n)
+        if n >= 0 and len(data) < n:
+            raise _TruncatedError(f"the file ends {len(data)} bytes into a {n}-byte read at offset {self.position}")
+        self.position += len(data)
+        return data
+
+
+@dataclass
+class RecoveryReport:
+    """What recover() kept and what it left behind."""
+
+    source: Path
+    destination: Path
+    messages_per_topic: dict[str, int] = field(default_factory=dict)
+    first_log_time_ns: int | None = None
+    last_log_time_ns: int | None = None
+    source_bytes: int = 0
+    good_bytes: int = 0  # the source is intact up to this offset (end of the last complete record)
+    chunks_kept: int = 0
+    chunks_damaged: int = 0
+    messages_without_channel: int = 0
+    metadata_records: int = 0
+    attachments: int = 0
+    source_was_complete: bool = False
+    end_reason: str = ""
+
+    @property
+    def bytes_discarded(self) -> int:
+        """Bytes of the damaged tail after the last complete record."""
+        return self.source_bytes - self.good_bytes
+
+    @property
+    def messages(self) -> int:
+        return sum(self.messages_per_topic.values())
+
+    def describe(self) -> str:
+        lines = [
+            f"{self.source} -> {self.destination}: {self.messages} messages in {self.chunks_kept} chunks, "
+            f"from {iso_utc(self.first_log_time_ns)} to {iso_utc(self.last_log_time_ns)}",
+            f"source {'was already complete' if self.source_was_complete else 'was unfinished'}: {self.end_reason}; "
+            f"{self.bytes_discarded} bytes of damaged tail discarded, {self.chunks_damaged} damaged chunks skipped",
+        ]
+        if self.messages_without_channel:
+            lines.append(f"{self.messages_without_channel} messages dropped: their channel record was lost")
+        lines += [f"  {topic}: {n}" for topic, n in sorted(self.messages_per_topic.items())]
+        return "\n".join(lines)
+
+
+def recover(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> RecoveryReport:
+    """Reads the unfinished MCAP `src` and writes every complete message into the new, indexed file `dst`.
+
+    Raises RecordingError (and leaves no `dst`) when `src` is unreadable, not an MCAP file or holds no
+    complete chunk, or `dst` exists or cannot be written.
+    """
+    source, destination = Path(src), Path(dst)
+    if source.resolve() == destination.resolve():
+        raise RecordingError(f"recover writes a new file: {destination} is the source itself")
+    try:
+        handle = source.open("rb")
+    except OSError as exc:
+        raise RecordingError(f"cannot read {source}: {exc.strerror or exc}") from None
+    with handle:
+        report = RecoveryReport(source, destination, source_bytes=os.fstat(handle.fileno()).st_size)
+        _check_magic(handle.read(len(MAGIC)), source)
+        handle.seek(0)
+        try:
+            out = destination.open("xb", buffering=0)
+        except FileExistsError:
+            raise RecordingError(f"refusing to overwrite {destination}: it already exists") from None
+        except OSError as exc:
+            raise RecordingError(f"cannot create {destination}: {exc.strerror or exc}") from None
+        try:
+            with out:
+                _copy(_StrictSource(handle, report.source_bytes), out, report)
+        except BaseException:
+            destination.unlink(missing_ok=True)
+            raise
+    return report
+
+
+def _check_magic(head: bytes, source: Path) -> None:
+    if not head:
+        raise RecordingError(f"{source} is empty: not an MCAP file")
+    if head != MAGIC[: len(head)] or len(head) < len(MAGIC):
+        raise RecordingError(f"{source} is not an MCAP file (it does not start with the MCAP magic bytes)")
+
+
+def _copy(source: _StrictSource, out: IO[bytes], report: RecoveryReport) -> None:
+    records = StreamReader(cast(IO[bytes], source), emit_chunks=True).records
+    writer: McapFileWriter | None = None
+    channels: dict[int, Channel] = {}  # channels whose schema is known: their messages can be kept
+    counts: Counter[str] = Counter()
+    try:
+        while True:
+            try:
+                record = next(records)
+            except StopIteration:
+                report.end_reason = "read to the end"
+                break
+            except (_TruncatedError, McapError) as exc:
+                report.end_reason = f"stopped at offset {report.good_bytes}: {_why(exc)}"
+                break
+            except Exception as exc:  # garbage must end the reading, never the program
+                report.end_reason = f"stopped at offset {report.good_bytes}: unreadable record ({type(exc).__name__})"
+                break
+            report.good_bytes = source.position
+            if writer is None:
+                if not isinstance(record, Header):
+                    raise RecordingError(f"{report.source} is not an MCAP file: it does not begin with a header")
+                writer = McapFileWriter(
+                    out, profile=record.profile, library=f"{record.library}; recovered by {LIBRARY}"
+                )
+                continue
+            if isinstance(record, Footer):
+                report.source_was_complete = True
+            _copy_record(record, writer, channels, counts, report)
+        if writer is None:
+            raise RecordingError(f"{report.source} is not an MCAP file: {report.end_reason}")
+        if not counts:
+            raise RecordingError(f"{report.source} holds no complete chunk: nothing to recover ({report.end_reason})")
+        writer.finish()
+        writer.sync()
+    except OSError as exc:
+        raise RecordingError(f"cannot write {report.destination}: {exc.strerror or exc}") from None
+    report.messages_per_topic = dict(counts)
+
+
+def _why(exc: BaseException) -> str:
+    return str(exc) or type(exc).__name__
+
+
+def _copy_record(
+    record: McapRecord,
+    writer: McapFileWriter,
+    channels: dict[int, Channel],
+    counts: Counter[str],
+    report: RecoveryReport,
+) -> None:
+    if isinstance(record, Chunk):
+        try:
+            inner = breakup_chunk(record, validate_crc=True)
+        except Exception:  # a corrupt chunk (bad CRC, bad compression) is skipped, not fatal
+            report.chunks_damaged += 1
+            return
+        report.chunks_kept += 1
+        for item in inner:
+            _copy_record(item, writer, channels, counts, report)
+    elif isinstance(record, Schema):
+        writer.add_schema(record.id, record.name, record.encoding, record.data)
+    elif isinstance(record, Channel):
+        if record.schema_id != 0 and not writer.has_schema(record.schema_id):
+            return  # its schema was in a lost chunk: its messages could not be decoded
+        channels[record.id] = record
+        writer.add_channel(record.id, record.topic, record.message_encoding, record.schema_id, record.metadata)
+    elif isinstance(record, Message):
+        channel = channels.get(record.channel_id)
+        if channel is None:
+            report.messages_without_channel += 1
+            return
+        writer.add_message(record.channel_id, record.log_time, record.publish_time, record.data, record.sequence)
+        counts[channel.topic] += 1
+        first, last = report.first_log_time_ns, report.last_log_time_ns
+        report.first_log_time_ns = record.log_time if first is None else min(first, record.log_time)
+        report.last_log_time_ns = record.log_time if last is None else max(last, record.log_time)
+    elif isinstance(record, Metadata):
+        writer.add_metadata(record.name, record.metadata)
+        report.metadata_records += 1
+    elif isinstance(record, Attachment):
+        writer.add_attachment(record.name, record.media_type, record.data, record.log_time, record.create_time)
+        report.attachments += 1
+    # Message indexes, the summary and the footer of the source are rebuilt, not copied.

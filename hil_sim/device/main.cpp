@@ -45,6 +45,7 @@ struct Options {
   double range_noise_cm = 2.0;
   uint64_t seed = 1;
   icgt::sim::CameraModelConfig camera{};
+  std::string camera_miss_triggers;  // comma-separated 1-based trigger indices
   icgt::sim::LinkImpairment impairment{};
 };
 
@@ -54,6 +55,7 @@ struct Options {
                "usage: icgt-sim-device --truth FILE [--t0-monotonic-ns N] [--link pty[:PATH]|tcp:PORT]\n"
                "  [--device-offset-us X] [--device-drift-ppm Y] [--rtc-utc-s S] [--utc0-us U] [--pps]\n"
                "  [--camera-latency-us N] [--camera-jitter-us N] [--camera-exposure-us N] [--camera-miss-every N]\n"
+               "  [--camera-miss-triggers I,J,...]\n"
                "  [--no-feedback] [--no-imu] [--no-lidar] [--lidar-model v3|v3hp] [--range-noise-cm S]\n"
                "  [--usb-frame-us N] [--usb-jitter-us N] [--seed N] [--events-out FILE] [--control PATH]\n"
                "see hil_sim/README.md\n",
@@ -96,6 +98,7 @@ Options parse(int argc, char** argv) {
     else if (a == "--camera-jitter-us") o.camera.latency_jitter_us = static_cast<uint32_t>(number());
     else if (a == "--camera-exposure-us") o.camera.exposure_us = static_cast<uint32_t>(number());
     else if (a == "--camera-miss-every") o.camera.miss_every = static_cast<uint32_t>(number());
+    else if (a == "--camera-miss-triggers") o.camera_miss_triggers = value();
     else if (a == "--usb-frame-us") o.impairment.frame_us = static_cast<uint32_t>(number());
     else if (a == "--usb-jitter-us") o.impairment.jitter_us = static_cast<uint32_t>(number());
     else if (a == "--help" || a == "-h") usage("help");
@@ -197,6 +200,13 @@ int main(int argc, char** argv) {
   cfg.rtc_utc_s_at_boot = opt.rtc_utc_s;
   SimBoard board(cfg, link);
   link.set_device_clock(board.clock());
+  {
+    std::istringstream misses(opt.camera_miss_triggers);
+    std::string item;
+    while (std::getline(misses, item, ',')) {
+      if (!item.empty()) board.camera().miss_trigger(static_cast<uint32_t>(std::strtoul(item.c_str(), nullptr, 10)));
+    }
+  }
 
   ControlSocket control;
   if (!opt.control.empty() && !control.open(opt.control, error)) {

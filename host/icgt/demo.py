@@ -19,6 +19,7 @@ import socket
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -127,8 +128,22 @@ def _fmt(p: dict[str, Any], unit: str, scale: float = 1.0) -> str:
     return f"p50 {p['p50'] * scale:.3g} / p95 {p['p95'] * scale:.3g} / max {p['max'] * scale:.3g} {unit} (n={p['n']})"
 
 
-def run_demo(scenario_name: str, out_dir: Path) -> dict[str, Any]:
-    sc = load_scenario(scenario_name)
+@dataclass
+class Flight:
+    """What one simulated flight left behind."""
+
+    scenario: Scenario
+    out_dir: Path
+    mcap: Path
+    truth_exposures: Path
+    card: Path
+    recorder_log: Path
+    recorder_exit: int
+    gcs: GroundStation
+
+
+def fly(sc: Scenario, out_dir: Path) -> Flight:
+    """Run one scenario: simulator, `icgt record` as a separate process, a ground station commanding it."""
     out_dir = out_dir.resolve()
     for stale in ("sim", "recording"):
         shutil.rmtree(out_dir / stale, ignore_errors=True)
@@ -137,18 +152,16 @@ def run_demo(scenario_name: str, out_dir: Path) -> dict[str, Any]:
     config_path = out_dir / "recorder.toml"
     config_path.write_text(recorder_config_text(sc, rec_dir))
     mav_port, gcs_port = free_udp_port(), free_udp_port()
-    print(f"scenario {sc.name}: {sc.description} ({sc.duration_s:.0f} s)", flush=True)
     session = SimSession(sc, out_dir / "sim", mavlink_port=mav_port, gcs_port=gcs_port)
     urls = session.start()
-    socket_path = out_dir / "recorder.sock"
-    recorder_log = (out_dir / "recorder.log").open("w")
+    log_path = out_dir / "recorder.log"
+    recorder_log = log_path.open("w")
     recorder = subprocess.Popen(
         [sys.executable, "-m", "icgt.cli", "record", "--config", str(config_path), "--device", urls.device,
-         "--mavlink", urls.mavlink, "--out", str(rec_dir), "--socket", str(socket_path)],
+         "--mavlink", urls.mavlink, "--out", str(rec_dir), "--socket", str(out_dir / "recorder.sock")],
         stdout=recorder_log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )  # fmt: skip
     gcs = GroundStation(urls.gcs)
-    summary: dict[str, Any] = {}
     try:
         print(f"recorder: icgt record --device {urls.device} --mavlink {urls.mavlink}", flush=True)
         cap = sc.camera.capture
@@ -176,18 +189,28 @@ def run_demo(scenario_name: str, out_dir: Path) -> dict[str, Any]:
         session.stop()
     mcaps = sorted(rec_dir.glob("*.mcap"))
     if recorder.returncode != 0 or not mcaps:
-        raise IcgtError(f"the recorder failed (exit {recorder.returncode}); see {out_dir / 'recorder.log'}")
-    mcap_path = mcaps[-1]
-    frames = read_frames(mcap_path)
-    truth = read_truth(session.files.truth_exposures)
+        raise IcgtError(f"the recorder failed (exit {recorder.returncode}); see {log_path}")
+    return Flight(
+        sc, out_dir, mcaps[-1], session.files.truth_exposures, session.files.card, log_path, recorder.returncode, gcs
+    )
+
+
+def run_demo(scenario_name: str, out_dir: Path) -> dict[str, Any]:
+    sc = load_scenario(scenario_name)
+    print(f"scenario {sc.name}: {sc.description} ({sc.duration_s:.0f} s)", flush=True)
+    flight = fly(sc, out_dir)
+    out_dir = flight.out_dir
+    gcs = flight.gcs
+    frames = read_frames(flight.mcap)
+    truth = read_truth(flight.truth_exposures)
     result = evaluate(sc, frames, truth)
-    images = sorted(session.files.card.glob("*.JPG"))
+    images = sorted(flight.card.glob("*.JPG"))
     start_ack = gcs.acks.get(mavutil.mavlink.MAV_CMD_IMAGE_START_CAPTURE)
     stop_ack = gcs.acks.get(mavutil.mavlink.MAV_CMD_IMAGE_STOP_CAPTURE)
     summary = {
         **result,
-        "mcap": str(mcap_path),
-        "truth": str(session.files.truth_exposures),
+        "mcap": str(flight.mcap),
+        "truth": str(flight.truth_exposures),
         "camera_card_images": len(images),
         "ground_station": {
             "camera_heartbeat_seen": gcs.camera_seen,
@@ -219,6 +242,7 @@ def run_demo(scenario_name: str, out_dir: Path) -> dict[str, Any]:
                 f"ground station            start ACK {gs['start_capture_ack']}, stop ACK {gs['stop_capture_ack']}, "
                 f"{gs['camera_image_captured_received']} CAMERA_IMAGE_CAPTURED",
                 f"geotag error (3D)         {_fmt(result['geotag_error_cm'], 'cm')}",
+                f"  frames without pose flags {_fmt(result['geotag_error_unflagged_cm'], 'cm')}",
                 f"  horizontal              {_fmt(result['geotag_horizontal_error_cm'], 'cm')}",
                 f"  timing part             {_fmt(result['timing_part_of_geotag_error_cm'], 'cm')}",
                 f"mid-exposure time error   {_fmt(result['mid_exposure_time_error_ms'], 'us', 1000.0)}"

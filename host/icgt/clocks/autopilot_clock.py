@@ -69,13 +69,11 @@ class AutopilotClockFilter:
         fast_interval_s: float = 0.2,
         slow_interval_s: float = 1.0,
         settle_min_samples: int = 10,
-        crystal_tolerance_ppm: float = 100.0,
     ) -> None:
         """``rtt_limit_ns``: round trips >= this are dropped (PX4 uses 10 ms). Other arguments as DeviceClockFilter.
 
         ``min_span_s`` is longer than the device's: with millisecond delays a few seconds of replies say
-        nothing useful about the drift, so until then the slope is the nominal rate (or the last drift);
-        after that an early slope is still shrunk towards it by ``crystal_tolerance_ppm``.
+        nothing useful about the drift, so until then the slope is the nominal rate (or the last drift).
         """
         self._line = _TwoWayLine(
             resolution_us=1.0,
@@ -90,7 +88,6 @@ class AutopilotClockFilter:
             path_asymmetry_ns=path_asymmetry_ns,
             jump_margin_ns=jump_margin_ns,
             frame_us=None,
-            crystal_tolerance_ppm=crystal_tolerance_ppm,
         )
         self._fast = fast_interval_s
         self._slow = slow_interval_s

@@ -77,6 +77,7 @@ __all__ = [
 ]
 
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
+_REORDER_US = 100_000.0  # a remote clock that went back by less than this is a reordered reply, not a reboot
 _SLOPE_ITERATIONS = 80  # golden-section steps: 2e-3 * 0.618**80 ~ 4e-20, far below double rounding
 
 
@@ -93,7 +94,7 @@ class ExchangeStatus(Enum):
 
     ACCEPTED = "accepted"
     REJECTED_RTT = "rejected_rtt"  # round trip above rtt_limit_ns: a delay spike
-    REJECTED_INVALID = "rejected_invalid"  # impossible stamps (reply before request, negative net RTT)
+    REJECTED_INVALID = "rejected_invalid"  # impossible stamps (reply before request, negative RTT, out of order)
     RESET_REBOOT = "reset_reboot"  # the remote clock went backwards: rebooted; accepted as the first of a new window
     RESET_JUMP = "reset_jump"  # the exchange contradicts the current line by far more than its bound
 
@@ -202,7 +203,6 @@ def _bucket_slope(
     pts_b: Sequence[tuple[float, float]],
     a0: float,
     s0: float,
-    floor_var: float,
 ) -> tuple[float, float]:
     """Drift from the envelope points of each side in equal time buckets, weighted by how sharp each side is.
 
@@ -212,7 +212,6 @@ def _bucket_slope(
     intercept per side is fitted by least squares, each side weighted by the inverse variance of
     its own bucket minima (a path with a sharp floor, e.g. a request that goes out at once, then
     dominates one whose floor is blurred by the frame wait and the scheduler).
-    ``floor_var`` [ns^2] bounds each side's variance from below (a handful of buckets can fit by luck).
     Returns the slope and its standard error (inf when there are too few buckets).
     """
     xs_all = [p[0] for p in pts_a] + [p[0] for p in pts_b]
@@ -246,7 +245,7 @@ def _bucket_slope(
             return s0, math.inf
         slope = sxy / sxx
         resid = sum((u - mu - slope * (x - mx)) ** 2 for x, u in side) / max(1, len(side) - 2)
-        w = 1.0 / max(resid, floor_var)
+        w = 1.0 / max(resid, 1e6)  # floor: (1 us)^2
         num += w * sxy
         den += w * sxx
     return num / den, math.sqrt(1.0 / den)
@@ -307,7 +306,6 @@ class _TwoWayLine:
         path_asymmetry_ns: float,
         jump_margin_ns: int,
         frame_us: float | None,
-        crystal_tolerance_ppm: float,
     ) -> None:
         if window_s <= 0 or max_samples < 2 or min_span_s < 0 or max_drift_ppm <= 0 or rtt_limit_ns <= 0:
             raise ValueError(
@@ -322,7 +320,6 @@ class _TwoWayLine:
         self._rtt_inclusive = rtt_limit_inclusive
         self._wander = wander_ppm * 1e-6
         self._prior_unc = prior_drift_uncertainty_ppm * 1e-6
-        self._tol = crystal_tolerance_ppm * 1e-6
         self._asym = float(path_asymmetry_ns)
         self._jump_margin_ns = jump_margin_ns
         self._frame_ns = None if frame_us is None else frame_us * 1000.0
@@ -359,6 +356,10 @@ class _TwoWayLine:
 
         status = ExchangeStatus.ACCEPTED
         if self._samples and rx < self._samples[-1].tx - self._half_res * 2.0:
+            if rx > self._samples[-1].tx - _REORDER_US:
+                # A little back: a reply overtaken by a newer one (UDP), not a reboot.
+                self.rejected_invalid += 1
+                return ExchangeStatus.REJECTED_INVALID
             self.reset(ResetReason.REBOOT)
             status = ExchangeStatus.RESET_REBOOT
         elif self._samples and self._contradicts(host_tx_ns, rx, tx, host_rx_ns):
@@ -539,15 +540,7 @@ class _TwoWayLine:
         s_hi = hi if feasible(hi) else _bisect_edge(feasible, s_best, hi)
         b_lo, b_hi = s_lo, s_hi
         if span_ok:
-            band = max(margin(s_best), 1000.0)
-            mid = 0.5 * (lower(s_best) + upper(s_best))
-            s_bucket, sigma = _bucket_slope(pts_a, pts_b, mid, s_best, (0.03 * band) ** 2)
-            if slope_hint is None and math.isfinite(sigma):
-                # Shrink a noisy early slope towards the prior (the last drift, or the nominal rate with
-                # the crystal tolerance as its spread): inverse-variance weights.
-                prior, prior_sd = (self._prior_s, self._prior_unc) if self._prior_s is not None else (0.0, self._tol)
-                w = prior_sd**2 / (prior_sd**2 + sigma**2)
-                slope_hint = w * s_bucket + (1.0 - w) * prior
+            s_bucket, sigma = _bucket_slope(pts_a, pts_b, 0.5 * (lower(s_best) + upper(s_best)), s_best)
             s = min(max(s_bucket if slope_hint is None else slope_hint, s_lo), s_hi)
             # The bound considers the lines whose slope is within 4 standard errors of ours (and feasible):
             # every feasible slope would be a pure worst case, several times wider than the slope's real error.
@@ -678,15 +671,11 @@ class DeviceClockFilter:
         dither: float = 0.1,
         seed: int = 0,
         frame_us: float | None = 1000.0,
-        crystal_tolerance_ppm: float = 100.0,
     ) -> None:
         """``path_asymmetry_ns``: known (request floor - reply floor) one-way delay difference, if calibrated.
 
         ``dither``: the schedule hint varies by +-this fraction, so requests do not stay phase-locked
         to the 1 ms USB frames (a fixed phase would be a fixed, unobservable bias).
-
-        ``crystal_tolerance_ppm``: spread of the drift before any is measured (an early, noisy slope is
-        shrunk towards the nominal rate by it); ``max_drift_ppm`` is the hard limit.
 
         ``frame_us``: the link's frame period, for detecting requests that arrive on the frame grid
         (see ``ClockEstimate.frame_locked``); None never assumes it.
@@ -704,7 +693,6 @@ class DeviceClockFilter:
             path_asymmetry_ns=path_asymmetry_ns,
             jump_margin_ns=jump_margin_ns,
             frame_us=frame_us,
-            crystal_tolerance_ppm=crystal_tolerance_ppm,
         )
         self._fast = fast_interval_s
         self._slow = slow_interval_s

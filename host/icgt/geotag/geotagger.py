@@ -18,6 +18,7 @@ from typing import Protocol
 
 import numpy as np
 
+from icgt.errors import IcgtError
 from icgt.geodesy import LocalFrame, q_from_euler_zyx, q_multiply, q_rotate, q_slerp, q_to_euler_zyx
 from icgt.geotag.record import FrameFlag, FrameRecord, PositionSource
 from icgt.mavlink.telemetry import AttitudeSample, FusedPositionSample, GpsSample, TelemetryBuffer, TelemetryStore
@@ -65,6 +66,7 @@ class GeotagConfig:
     range_stale_ms: float = 50.0
     stale_pose_ms: float = 100.0
     max_wait_ms: float = 500.0
+    max_clock_uncertainty_us: float = 1000.0  # a worse device->host mapping bound flags the frame
     blur_limit_px: float = 1.0
     surface_normal_enu: tuple[float, float, float] | None = None  # the structure's face, if known
     origin: tuple[float, float, float] | None = None  # ENU origin lat, lon, alt MSL; else the first fix
@@ -189,7 +191,12 @@ class Geotagger:
 
     # ------------------------------------------------------------------ internals
     def _mid_host_ns(self, p: _Pending) -> int:
-        return self._dev.device_to_host_ns(p.mid_device_us) if self._dev.settled else p.rx_host_ns
+        # Before the first accepted exchange there is no mapping at all: the arrival time is the
+        # best guess (milliseconds late), and the frame says so (clock_unsynced).
+        try:
+            return self._dev.device_to_host_ns(p.mid_device_us)
+        except IcgtError:
+            return p.rx_host_ns
 
     def _later_samples_arrived(self, mid_host_ns: int) -> bool:
         mid_boot = self._ap.host_to_autopilot_us(mid_host_ns)
@@ -206,10 +213,12 @@ class Geotagger:
     def _build(self, p: _Pending, mid_host_ns: int) -> FrameRecord:
         e = p.exposure
         flags = list(p.flags)
-        settled = self._dev.settled
-        if not settled:
+        try:
+            unc_ns = self._dev.uncertainty_ns(p.mid_device_us)
+        except IcgtError:
+            unc_ns = 50_000_000  # no exchange yet: USB and scheduling delays of the EXPOSURE itself
+        if unc_ns > self._cfg.max_clock_uncertainty_us * 1000:
             flags.append(FrameFlag.CLOCK_UNSYNCED.value)
-        unc_ns = self._dev.uncertainty_ns(p.mid_device_us) if settled else 50_000_000
         utc = self._utc.utc_at(p.mid_device_us, mid_host_ns)
         if utc is None:
             flags.append(FrameFlag.NO_UTC.value)

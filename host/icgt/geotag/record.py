@@ -32,7 +32,7 @@ class FrameFlag(enum.StrEnum):
     STALE_POSE = "stale_pose"  # a bracketing pose sample is farther than the stale limit
     POSE_EXTRAPOLATED = "pose_extrapolated"  # the later sample never came: held from the earlier one
     NO_ATTITUDE = "no_attitude"
-    CLOCK_UNSYNCED = "clock_unsynced"  # device clock not yet mapped to host time: times are estimates
+    CLOCK_UNSYNCED = "clock_unsynced"  # device->host mapping unknown or its bound above the limit (1 ms)
     NO_UTC = "no_utc"
     RANGE_INVALID = "range_invalid"  # no LiDAR return near the exposure
     RANGE_OUT_OF_BAND = "range_out_of_band"  # outside the configured working distance

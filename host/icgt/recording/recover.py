@@ -139,7 +139,8 @@ def _copy(source: _StrictSource, out: IO[bytes], report: RecoveryReport) -> None
         while True:
             try:
                 record = next(records)
-            except StopIteration:
+            except StopIteration:  # only after the footer and the closing magic
+                report.good_bytes = source.position
                 report.end_reason = "read to the end"
                 break
             except (_TruncatedError, McapError) as exc:

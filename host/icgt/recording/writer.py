@@ -456,8 +456,8 @@ class McapRecorder:
     estimates depend. The queue (`queue_size` messages) absorbs a slow disk; if it stays full for
     `put_timeout_s`, `write()` raises RecordingError rather than block forever. The queue is a deque the
     writer drains in batches: it is woken by the first message of a chunk, by control requests
-    (metadata, flush, close), by a full queue and by the chunk deadline, not by every message, which
-    halves the CPU cost per message against queue.Queue.
+    (metadata, flush, close), by a filling queue and by the chunk deadline, not by every message
+    (measured against queue.Queue: 8.5 -> 5.5-6.8 us of CPU per LocationFix written).
     """
 
     def __init__(
@@ -679,17 +679,22 @@ class McapRecorder:
     # --- the writer thread --------------------------------------------------------------------------
 
     def _wait_for_work(self, deadline: float) -> None:
-        """Sleeps until the chunk deadline, a control request or a full queue; with no open chunk, until work."""
-        self._wake.clear()
+        """Sleeps until the chunk deadline, a control request or a full queue; with no open chunk, until work.
+
+        The wake-up is consumed (cleared) after waking, not before sleeping, so a request made while the
+        writer was busy is never lost; its item is in the queue before the event is set, so the drain
+        that follows the clear sees it. A stale wake-up only costs one empty pass.
+        """
         if deadline == math.inf:
             self._writer_idle = True
-            if not self._pending:  # looked at after setting the flag: a racing append wakes us
+            if not self._pending:  # looked at after setting the flag: a racing append sees the flag and wakes us
                 self._wake.wait()
             self._writer_idle = False
         else:
             timeout = deadline - time.monotonic()
             if timeout > 0:
                 self._wake.wait(timeout)
+        self._wake.clear()
 
     def _run(self) -> None:
         deadline = math.inf  # monotonic time by which the open chunk must be on disk

@@ -22,6 +22,9 @@ from icgt.sim.scenario import Scenario
 from icgt.sim.trajectory import Trajectory
 
 
+_POSE_FLAGS = {"stale_pose", "pose_extrapolated", "no_fix", "no_attitude", "clock_unsynced"}
+
+
 @dataclass(frozen=True)
 class Percentiles:
     p50: float
@@ -76,6 +79,7 @@ def evaluate(scenario: Scenario, frames: list[dict[str, Any]], truth: list[dict[
     wrongly_unflagged = [fr for fr in unmatched_frames if "feedback_missing" not in fr.get("flags", [])]
 
     pos_err_cm: list[float] = []
+    trusted_err_cm: list[float] = []  # frames without a pose-quality flag: what a user would keep
     horiz_err_cm: list[float] = []
     time_err_ms: list[float] = []
     timing_part_cm: list[float] = []
@@ -93,6 +97,8 @@ def evaluate(scenario: Scenario, frames: list[dict[str, Any]], truth: list[dict[
         want = frame.geodetic_to_enu(t["lat_deg"], t["lon_deg"], t["alt_msl_m"])
         d = np.asarray(got, dtype=float) - np.asarray(want, dtype=float)
         pos_err_cm.append(float(np.linalg.norm(d)) * 100.0)
+        if not _POSE_FLAGS & set(fr.get("flags", [])):
+            trusted_err_cm.append(pos_err_cm[-1])
         horiz_err_cm.append(float(np.linalg.norm(d[:2])) * 100.0)
     flags = Counter(f for fr in frames for f in fr.get("flags", []))
     return {
@@ -105,6 +111,7 @@ def evaluate(scenario: Scenario, frames: list[dict[str, Any]], truth: list[dict[
         "frames_without_exposure_not_flagged": len(wrongly_unflagged),
         "frames_with_position": len(pos_err_cm),
         "geotag_error_cm": Percentiles.of(pos_err_cm).as_dict(),
+        "geotag_error_unflagged_cm": Percentiles.of(trusted_err_cm).as_dict(),
         "geotag_horizontal_error_cm": Percentiles.of(horiz_err_cm).as_dict(),
         "mid_exposure_time_error_ms": Percentiles.of(time_err_ms).as_dict(),
         "timing_part_of_geotag_error_cm": Percentiles.of(timing_part_cm).as_dict(),

@@ -1,0 +1,129 @@
+"""The recorder end to end through the simulator: one flight with every fault, checked many ways.
+
+The flight (short_flight.toml): a ground station starts 5 fps capture over MAVLink (routed by
+the simulated autopilot to the recorder's camera component) and stops it later; meanwhile the
+camera ignores trigger 7, someone presses the shutter by hand, the device's USB cable is pulled
+for 1.5 s and the autopilot link is gone for 4 s. Everything runs for real: the firmware core
+behind a pty, pymavlink over UDP, `icgt record` as its own process, MCAP read back with the
+official reader.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
+from pymavlink import mavutil
+
+from icgt.demo import Flight, fly
+from icgt.sim.evaluate import evaluate, read_frames, read_truth
+from icgt.sim.scenario import load_scenario
+
+SCENARIO = Path(__file__).with_name("short_flight.toml")
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory: pytest.TempPathFactory) -> Flight:
+    return fly(load_scenario(SCENARIO), tmp_path_factory.mktemp("flight"))
+
+
+@pytest.fixture(scope="module")
+def frames(flight: Flight) -> list[dict[str, Any]]:
+    return read_frames(flight.mcap)
+
+
+@pytest.fixture(scope="module")
+def result(flight: Flight, frames: list[dict[str, Any]]) -> dict[str, Any]:
+    return evaluate(flight.scenario, frames, read_truth(flight.truth_exposures))
+
+
+def messages(flight: Flight, topic: str) -> list[dict[str, Any]]:
+    with flight.mcap.open("rb") as f:
+        return [json.loads(m.data) for _, _, m in make_reader(f).iter_messages(topics=[topic])]
+
+
+def test_every_exposure_is_recorded_exactly_once(result: dict[str, Any]) -> None:
+    assert result["true_exposures"] >= 60
+    assert result["matched"] == result["true_exposures"]
+    assert result["exposures_missing_from_log"] == 0
+
+
+def test_the_ignored_trigger_and_the_manual_shot_are_recorded_and_flagged(frames: list[dict[str, Any]]) -> None:
+    missing = [f for f in frames if "feedback_missing" in f["flags"]]
+    manual = [f for f in frames if "unsolicited" in f["flags"]]
+    assert [f["image_index"] for f in missing] == [7]
+    assert len(manual) == 1 and manual[0]["image_index"] == 0
+
+
+def test_ground_station_starts_and_stops_capture_and_sees_the_images(flight: Flight, frames: list[Any]) -> None:
+    acks = flight.gcs.acks
+    assert acks[mavutil.mavlink.MAV_CMD_IMAGE_START_CAPTURE] == mavutil.mavlink.MAV_RESULT_ACCEPTED
+    assert acks[mavutil.mavlink.MAV_CMD_IMAGE_STOP_CAPTURE] == mavutil.mavlink.MAV_RESULT_ACCEPTED
+    assert flight.gcs.camera_seen and flight.gcs.camera_info is not None
+    by_index = {f["image_index"]: f for f in frames if f["image_index"]}
+    images = [m for m in flight.gcs.images if m.image_index in by_index]
+    # Images published while the autopilot link was down (4 s of 13) never reach the ground station.
+    assert len(images) >= len(by_index) - 25
+    for m in images:
+        f = by_index[m.image_index]
+        if f["lat_deg"] is not None:
+            assert abs(m.lat / 1e7 - f["lat_deg"]) < 2e-7
+            assert abs(m.lon / 1e7 - f["lon_deg"]) < 2e-7
+
+
+def test_unplugged_device_is_reconnected_and_the_outage_recorded(flight: Flight) -> None:
+    events = [e for e in messages(flight, "/icgt/link_events") if e["link"] == "device"]
+    kinds = [e["kind"] for e in events]
+    assert "disconnected" in kinds and "connected" in kinds
+    back = next(e for e in events if e["kind"] == "connected")
+    assert 1.0e9 <= back["outage_ns"] <= 3.0e9
+
+
+def test_autopilot_link_loss_is_recorded_and_frames_still_geotagged_or_flagged(
+    flight: Flight, frames: list[dict[str, Any]]
+) -> None:
+    events = [e for e in messages(flight, "/icgt/link_events") if e["link"] == "mavlink"]
+    kinds = [e["kind"] for e in events]
+    assert "autopilot_lost" in kinds and "autopilot_back" in kinds
+    for f in frames:
+        if f["lat_deg"] is None:
+            assert {"no_fix", "no_attitude"} & set(f["flags"]), f
+        elif f["pose_gap_before_ms"] > 100 or f["pose_gap_after_ms"] > 100:
+            assert {"stale_pose", "pose_extrapolated"} & set(f["flags"]), f
+
+
+def test_geotags_are_accurate_and_timing_error_is_negligible(result: dict[str, Any]) -> None:
+    assert result["frames_with_position"] >= result["matched"] - 25
+    # Frames whose pose is not flagged: the autopilot's fused estimate (a few cm) is the limit.
+    assert result["geotag_error_unflagged_cm"]["p95"] < 25.0
+    assert result["geotag_error_unflagged_cm"]["n"] >= result["matched"] - 25
+    assert result["timing_part_of_geotag_error_cm"]["p95"] < 2.0
+
+
+def test_every_topic_has_a_schema_and_every_message_decodes(flight: Flight) -> None:
+    decoders = DecoderFactory()
+    topics: dict[str, int] = {}
+    with flight.mcap.open("rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None, "the file is complete: it has a summary and an index"
+        for schema, channel, message in reader.iter_messages():
+            assert schema is not None, channel.topic
+            if channel.message_encoding == "json":
+                assert schema.encoding == "jsonschema"
+                json.loads(message.data)
+            else:
+                decoder = decoders.decoder_for(channel.message_encoding, schema)
+                assert decoder is not None, channel.topic
+                decoder(message.data)
+            topics[channel.topic] = topics.get(channel.topic, 0) + 1
+        names = {m.name for m in reader.iter_metadata()}
+    for topic in ("/frames", "/frames/location", "/frames/pose", "/tf", "/icgt/log", "/device/exposure",
+                  "/device/imu", "/device/range", "/device/status", "/clock/device", "/clock/device/exchanges",
+                  "/mavlink/global_position_int", "/mavlink/attitude_quaternion"):
+        assert topics.get(topic, 0) > 0, topic
+    assert {"icgt.device", "icgt.config", "icgt.calibration"} <= names

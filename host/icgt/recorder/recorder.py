@@ -592,6 +592,18 @@ class Recorder:
                 self._write(topics.CLOCK_UTC, self.utc.host_to_utc(now).to_dict() | {"host_ns": now}, now)
 
     def _record_link_summary(self) -> None:
+        origin = self.geotagger.origin
+        if origin is not None and self.mcap is not None:
+            with contextlib.suppress(RecordingError):
+                self.mcap.add_metadata(
+                    "icgt.enu_origin",
+                    {
+                        "lat_deg": repr(origin[0]),
+                        "lon_deg": repr(origin[1]),
+                        "alt_msl_m": repr(origin[2]),
+                        "note": "origin of the frames' east/north/up: the first usable fix (or the configured origin)",
+                    },
+                )
         if self.device is None:
             return
         stats = self.device.decoder_stats

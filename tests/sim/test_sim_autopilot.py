@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
-from icgt.sim.autopilot import SimAutopilot
 from icgt.geodesy import LocalFrame, enu_to_ned, q_to_euler_zyx
+from icgt.sim.autopilot import SimAutopilot
 from icgt.sim.scenario import Scenario, parse_scenario
 from icgt.sim.trajectory import Trajectory
 from icgt.sim.truth import ClockMaps

@@ -104,13 +104,17 @@ void App::begin() {
   if (fb != FeedbackResult::ok) log(now, proto::LogLevel::warning, "feedback line could not be attached");
   next_status_t_us_ = now;
   link_up_ = ports_.link.connected();
+  if (link_up_) send_after_t_us_ = now + kLinkSettleUs;
   send_hello(now);
 }
 
 void App::poll() {
   const uint64_t start = ports_.clock.now_us();
   const bool up = ports_.link.connected();
-  if (up && !link_up_) send_hello(start);  // a host (re)opened the port: tell it who we are
+  if (up && !link_up_) {
+    send_hello(start);  // a host (re)opened the port: tell it who we are, once it is listening
+    send_after_t_us_ = start + kLinkSettleUs;
+  }
   if (!up && link_up_) outbox_.link_lost();
   link_up_ = up;
 
@@ -128,7 +132,7 @@ void App::poll() {
     next_status_t_us_ += kStatusPeriodUs;
     if (next_status_t_us_ <= now) next_status_t_us_ = now + kStatusPeriodUs;  // after a long stall
   }
-  if (link_up_) outbox_.pump(ports_.link, ports_.clock.now_us());
+  if (link_up_ && start >= send_after_t_us_) outbox_.pump(ports_.link, ports_.clock.now_us());
 
   const uint64_t took = ports_.clock.now_us() - start;
   if (took > loop_max_us_) loop_max_us_ = took > UINT32_MAX ? UINT32_MAX : static_cast<uint32_t>(took);

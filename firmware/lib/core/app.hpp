@@ -57,6 +57,10 @@ struct DeviceConfig {
 class App {
  public:
   static constexpr uint64_t kStatusPeriodUs = 1'000'000;
+  // After a host opens the port the device holds its output this long: hosts flush their
+  // input buffer while opening (pyserial does, after raising DTR), which would silently eat
+  // whatever the device sent in that window, HELLO and queued exposures included.
+  static constexpr uint64_t kLinkSettleUs = 100'000;
   static constexpr std::size_t kRxChunkBytes = 64;
 
   App(const AppPorts& ports, const BoardIdentity& identity, const DeviceConfig& config = {});
@@ -105,6 +109,7 @@ class App {
   bool imu_enabled_;
   bool lidar_enabled_;
   bool link_up_ = false;
+  uint64_t send_after_t_us_ = 0;
   uint64_t next_status_t_us_ = 0;
   uint32_t loop_max_us_ = 0;
   Bno055State last_imu_state_ = Bno055State::initialising;

@@ -101,6 +101,7 @@ proto::Configure default_configure() {
 struct Rig {
   explicit Rig(sim::SimBoardConfig cfg = {}) : board(cfg, link), host(link) {
     board.begin();
+    run_for(core::App::kLinkSettleUs);  // the device holds its output while a host opens the port
   }
   void run_for(uint64_t dt_us) {
     const uint64_t end = board.clock().now_us() + dt_us;
@@ -113,6 +114,16 @@ struct Rig {
   sim::SimBoard board;
   Host host;
 };
+
+TEST(App, HoldsOutputUntilTheHostHasSettledThenSaysHello) {
+  sim::MemoryStream link;
+  sim::SimBoard board(sim::SimBoardConfig{}, link);
+  board.begin();
+  board.run_until(core::App::kLinkSettleUs - 1000);
+  EXPECT_TRUE(link.host_take().empty()) << "nothing while the host may still be flushing its input";
+  board.run_until(core::App::kLinkSettleUs + 1000);
+  EXPECT_FALSE(link.host_take().empty());
+}
 
 TEST(App, SaysHelloAtBootWithVersionHashAndBoard) {
   Rig rig;

@@ -172,10 +172,14 @@ class DeviceLink:
             self._seq = (self._seq + 1) & 0xFFFFFFFF
             if pending is not None:
                 self._pending[seq] = pending
+            frame = encode_frame(message, seq)
             if isinstance(message, TimeSync):
-                self._sync_sent[seq] = message.host_t_ns
+                # The send time is taken after framing, right before the bytes go to the kernel: the
+                # field in the message only identifies the request (every microsecond of host-side
+                # delay counted in the request's path biases the offset by half of it).
+                self._sync_sent[seq] = time.monotonic_ns()
             try:
-                port.write(encode_frame(message, seq))
+                port.write(frame)
             except (serial.SerialException, OSError) as exc:
                 self._pending.pop(seq, None)
                 raise DeviceLinkError(f"writing to {self.url}: {exc}") from exc
@@ -287,7 +291,7 @@ class DeviceLink:
                 pending.done.set()
         elif isinstance(msg, TimeSyncReply):
             host_tx_ns = self._sync_sent.pop(msg.request_seq, None)
-            if host_tx_ns is not None and host_tx_ns == msg.host_t_ns:
+            if host_tx_ns is not None:
                 self._on_time_sync(TimeSyncSample(host_tx_ns, msg.device_rx_t_us, msg.device_tx_t_us, host_rx_ns))
             if len(self._sync_sent) > 64:  # replies lost on the wire: forget the oldest requests
                 for seq in sorted(self._sync_sent)[:32]:
@@ -333,6 +337,4 @@ class DeviceLink:
             self._port = port
         self._connected.set()
         outage = now - self._down_since_ns
-        self._on_event(
-            LinkEvent("connected", now, f"device link back after {outage / 1e9:.2f} s", outage_ns=outage)
-        )
+        self._on_event(LinkEvent("connected", now, f"device link back after {outage / 1e9:.2f} s", outage_ns=outage))

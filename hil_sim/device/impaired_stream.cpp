@@ -1,6 +1,17 @@
 #include "device/impaired_stream.hpp"
 
+#include <time.h>
+
 namespace icgt::sim {
+namespace {
+
+uint64_t monotonic_now_ns() {
+  timespec ts{};
+  ::clock_gettime(CLOCK_MONOTONIC, &ts);
+  return static_cast<uint64_t>(ts.tv_sec) * 1'000'000'000u + static_cast<uint64_t>(ts.tv_nsec);
+}
+
+}  // namespace
 
 ImpairedStream::ImpairedStream(HostPort& port, const ClockMap& map, uint64_t seed)
     : port_(port), map_(map), rng_(seed) {}
@@ -76,7 +87,9 @@ void ImpairedStream::pump(uint64_t now_monotonic_ns) {
   for (;;) {
     const std::size_t n = port_.read_some(buf, sizeof buf);
     if (n == 0) break;
-    uint64_t arrive_ns = now_monotonic_ns;
+    // Read the clock after the bytes are in hand: a time taken earlier in the loop could come
+    // before they were even sent, and the device would then see them before the host sent them.
+    uint64_t arrive_ns = std::max(now_monotonic_ns, monotonic_now_ns());
     if (frame_ns > 0) {
       const uint64_t since = arrive_ns - map_.t0_monotonic_ns;
       arrive_ns = map_.t0_monotonic_ns + (since / frame_ns + 1) * frame_ns;

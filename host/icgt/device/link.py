@@ -257,11 +257,13 @@ class DeviceLink:
                 self._try_reopen()
                 continue
             try:
-                data = port.read(1)
-                host_rx_ns = time.monotonic_ns()
+                data = port.read(1)  # returns as soon as a byte is there
                 waiting = port.in_waiting
                 if waiting:
                     data += port.read(waiting)
+                # Stamped after the last byte of the chunk is in hand: a frame that completes in it
+                # arrived no later than this (a stamp taken after the first byte could precede it).
+                host_rx_ns = time.monotonic_ns()
             except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
                 self._link_down(str(exc))
                 continue

@@ -128,7 +128,7 @@ class Recorder:
         self.config = config
         self._control_path = control_socket
         self._mono_to_utc_ns = time.time_ns() - time.monotonic_ns()  # fixed: log times stay monotonic
-        self.device_clock = DeviceClockFilter()
+        self.device_clock = DeviceClockFilter(slow_interval_s=0.1)
         self.autopilot_clock = AutopilotClockFilter()
         self.utc = UtcMapper(self.autopilot_clock)
         self.pps = PpsUtcMapper()

@@ -65,10 +65,14 @@ firmware-checks:
 
 test: venv build lint fuzz firmware-checks
 	ctest --test-dir $(BUILD) --output-on-failure
-	ICGT_BUILD_DIR=$(BUILD) $(VENV)/bin/pytest -q tests
+	ICGT_BUILD_DIR=$(BUILD) $(VENV)/bin/pytest -q --timeout 600 -p no:cacheprovider tests
 
-bench: venv
+# Figures next to their peers, measured in the same run (shared, noisy machines: not timed tests).
+bench: venv build
 	$(PY) benchmarks/protocol_decode.py
+	$(PY) benchmarks/clock_sync.py
+	$(PY) benchmarks/mcap_write.py
+	$(PY) benchmarks/recorder_flight.py --scenario deck_pass --out bench-out/recorder
 
 clean:
 	rm -rf build $(VENV) demo-out

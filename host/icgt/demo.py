@@ -92,6 +92,7 @@ class GroundStation:
         self.conn = mavutil.mavlink_connection(url, source_system=GCS_SYSTEM, source_component=GCS_COMPONENT)
         self.acks: dict[int, int] = {}
         self.images: list[Any] = []
+        self.image_rx_ns: list[int] = []  # host monotonic arrival of each CAMERA_IMAGE_CAPTURED
         self.camera_info: Any = None
         self.camera_seen = False
 
@@ -111,12 +112,24 @@ class GroundStation:
                     self.acks[int(msg.command)] = int(msg.result)
                 elif kind == "CAMERA_IMAGE_CAPTURED":
                     self.images.append(msg)
+                    self.image_rx_ns.append(time.monotonic_ns())
                 elif kind == "CAMERA_INFORMATION":
                     self.camera_info = msg
 
     def command(self, command: int, *params: float) -> None:
         p = [*params, 0, 0, 0, 0, 0, 0, 0][:7]
         self.conn.mav.command_long_send(1, CAMERA_COMPONENT, command, 0, *p)
+
+    def command_acked(self, command: int, *params: float, attempts: int = 3) -> None:
+        """Send a command and resend it after 1 s without a COMMAND_ACK, as ground stations do."""
+        for _ in range(attempts):
+            self.acks.pop(command, None)
+            self.command(command, *params)
+            end = time.monotonic() + 1.0
+            while command not in self.acks and time.monotonic() < end:
+                self.pump(0.1)
+            if command in self.acks:
+                return
 
     def close(self) -> None:
         self.conn.close()
@@ -140,6 +153,14 @@ class Flight:
     recorder_log: Path
     recorder_exit: int
     gcs: GroundStation
+    recorder_cpu_s: float  # user + system CPU time of the recorder process over the flight
+    recorder_wall_s: float
+
+
+def _cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a live process, from /proc (Linux)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def fly(sc: Scenario, out_dir: Path) -> Flight:
@@ -162,20 +183,29 @@ def fly(sc: Scenario, out_dir: Path) -> Flight:
         stdout=recorder_log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )  # fmt: skip
     gcs = GroundStation(urls.gcs)
+    started = time.monotonic()
+    cpu_s = wall_s = 0.0
     try:
         print(f"recorder: icgt record --device {urls.device} --mavlink {urls.mavlink}", flush=True)
         cap = sc.camera.capture
-        gcs.pump(max(0.5, min(cap.start_s, 3.0) - session.tau_s))
+        # Like QGroundControl: talk to the camera once its HEARTBEAT has been seen.
+        deadline = time.monotonic() + 15.0
+        while not gcs.camera_seen and time.monotonic() < deadline:
+            gcs.pump(0.2)
+        if not gcs.camera_seen:
+            raise IcgtError(f"the recorder's camera component never appeared; see {log_path}")
         gcs.command(mavutil.mavlink.MAV_CMD_REQUEST_MESSAGE, mavutil.mavlink.MAVLINK_MSG_ID_CAMERA_INFORMATION)
         gcs.pump(max(0.2, cap.start_s - session.tau_s))
         interval_s = cap.interval_ms / 1000.0 if cap.mode == "interval" else 1.0 / cap.burst_fps
         print(f"ground station: start capture at tau {session.tau_s:.1f} s", flush=True)
-        gcs.command(mavutil.mavlink.MAV_CMD_IMAGE_START_CAPTURE, 0, interval_s, 0, 0)
+        gcs.command_acked(mavutil.mavlink.MAV_CMD_IMAGE_START_CAPTURE, 0, interval_s, 0, 0)
         stop_at = cap.stop_s if cap.stop_s is not None else sc.duration_s - 2.0
         gcs.pump(max(0.0, stop_at - session.tau_s))
         print(f"ground station: stop capture at tau {session.tau_s:.1f} s", flush=True)
-        gcs.command(mavutil.mavlink.MAV_CMD_IMAGE_STOP_CAPTURE, 0)
+        gcs.command_acked(mavutil.mavlink.MAV_CMD_IMAGE_STOP_CAPTURE, 0)
         gcs.pump(max(1.5, sc.duration_s - session.tau_s))
+        if recorder.poll() is None:
+            cpu_s, wall_s = _cpu_seconds(recorder.pid), time.monotonic() - started
     finally:
         if recorder.poll() is None:
             recorder.send_signal(signal.SIGTERM)
@@ -191,7 +221,16 @@ def fly(sc: Scenario, out_dir: Path) -> Flight:
     if recorder.returncode != 0 or not mcaps:
         raise IcgtError(f"the recorder failed (exit {recorder.returncode}); see {log_path}")
     return Flight(
-        sc, out_dir, mcaps[-1], session.files.truth_exposures, session.files.card, log_path, recorder.returncode, gcs
+        sc,
+        out_dir,
+        mcaps[-1],
+        session.files.truth_exposures,
+        session.files.card,
+        log_path,
+        recorder.returncode,
+        gcs,
+        cpu_s,
+        wall_s,
     )
 
 

@@ -21,7 +21,14 @@ import numpy as np
 from icgt.errors import IcgtError
 from icgt.geodesy import LocalFrame, q_from_euler_zyx, q_multiply, q_rotate, q_slerp, q_to_euler_zyx
 from icgt.geotag.record import FrameFlag, FrameRecord, PositionSource
-from icgt.mavlink.telemetry import AttitudeSample, FusedPositionSample, GpsSample, TelemetryBuffer, TelemetryStore
+from icgt.mavlink.telemetry import (
+    AttitudeSample,
+    FusedPositionSample,
+    GpsSample,
+    LocalPositionSample,
+    TelemetryBuffer,
+    TelemetryStore,
+)
 from icgt.protocol.messages import Exposure, ExposureFlags, Imu, Range, RangeFlags
 
 GPS_FIX_3D = 3
@@ -342,11 +349,19 @@ class Geotagger:
         t = int(mid_boot)
         before, after = self._tm.fused.bracket(t)
         gps, _ = self._tm.gps.bracket(t)
-        if before is None or not before.usable or before.lat_deg is None:
+        usable = before is not None and before.usable and before.lat_deg is not None
+        fresh = usable and before is not None and (mid_boot - before.boot_us) / 1000.0 <= self._cfg.stale_pose_ms
+        if not fresh:
+            # No current fix (GPS denied under a deck, or the fused estimate stopped): the
+            # autopilot's local position, if it has one, beats holding an old fix.
+            vio = self._local_position(mid_boot, flags)
+            if vio is not None:
+                return vio[0], PositionSource.VIO, gps, vio[1], vio[2]
+        if not usable or before is None:
             flags.append(FrameFlag.NO_FIX.value)
             return None
         if self._frame is None:
-            assert before.lon_deg is not None and before.alt_msl_m is not None
+            assert before.lat_deg is not None and before.lon_deg is not None and before.alt_msl_m is not None
             self.origin = (before.lat_deg, before.lon_deg, before.alt_msl_m)
             self._frame = LocalFrame(*self.origin)
         a = self._enu(before)
@@ -368,6 +383,39 @@ class Geotagger:
         elif gps is not None and gps.fix_type == 5:
             source = PositionSource.RTK_FLOAT
         return enu, source, gps, gap_before, gap_after
+
+    def _local_position(self, mid_boot: float, flags: list[str]) -> tuple[np.ndarray, float, float] | None:
+        """GPS denied: the autopilot's local position (VIO/SLAM), placed in ENU by the last moment
+        both a usable fix and a local position were known (the offset between the two frames)."""
+        lb, la = self._tm.local_position.bracket(int(mid_boot))
+        if lb is None or self._frame is None:
+            return None
+        history = [s for s in self._tm.fused.between(int(mid_boot) - 600_000_000, int(mid_boot)) if s.usable]
+        if not history:
+            return None
+        anchor = history[-1]
+        ab, aa = self._tm.local_position.bracket(anchor.boot_us)
+        at_anchor = ab or aa
+        if at_anchor is None:
+            return None
+
+        def enu_of(s: LocalPositionSample) -> np.ndarray:
+            return np.array([s.y_m, s.x_m, -s.z_m])  # local NED -> ENU axes
+
+        offset = self._enu(anchor) - enu_of(at_anchor)
+        a = enu_of(lb)
+        if la is None or la.boot_us == lb.boot_us:
+            enu, gap_after = a, 0.0 if la is not None else math.inf
+        else:
+            f = (mid_boot - lb.boot_us) / (la.boot_us - lb.boot_us)
+            enu = a + (enu_of(la) - a) * f
+            gap_after = (la.boot_us - mid_boot) / 1000.0
+        if la is None:
+            flags.append(FrameFlag.POSE_EXTRAPOLATED.value)
+        gap_before = (mid_boot - lb.boot_us) / 1000.0
+        if max(gap_before, gap_after) > self._cfg.stale_pose_ms:
+            flags.append(FrameFlag.STALE_POSE.value)
+        return offset + enu, gap_before, gap_after
 
     def _enu(self, s: FusedPositionSample) -> np.ndarray:
         assert self._frame is not None and s.lat_deg is not None and s.lon_deg is not None

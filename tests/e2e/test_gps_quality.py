@@ -1,0 +1,51 @@
+"""Position source and flags through changing GPS quality: no fix, a fix, GPS denied (VIO), a fix again."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from icgt.demo import Flight, fly
+from icgt.sim.evaluate import evaluate, read_frames, read_truth
+from icgt.sim.scenario import load_scenario
+
+SCENARIO = Path(__file__).with_name("gps_denied.toml")
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory: pytest.TempPathFactory) -> Flight:
+    return fly(load_scenario(SCENARIO), tmp_path_factory.mktemp("gps"))
+
+
+@pytest.fixture(scope="module")
+def frames_with_tau(flight: Flight) -> list[tuple[float, dict[str, Any]]]:
+    truth = {int(t["start_device_us"]): t for t in read_truth(flight.truth_exposures)}
+    return [
+        (float(truth[int(f["start_device_us"])]["mid_tau_s"]), f)
+        for f in read_frames(flight.mcap)
+        if int(f["start_device_us"]) in truth
+    ]
+
+
+def test_before_the_first_fix_frames_have_no_position_and_say_so(frames_with_tau: list[Any]) -> None:
+    early = [f for tau, f in frames_with_tau if tau < 4.5]
+    assert early
+    for f in early:
+        assert f.get("lat_deg") is None and "no_fix" in f["flags"] and f["position_source"] == "none"
+
+
+def test_gps_denied_frames_are_placed_by_local_position(frames_with_tau: list[Any]) -> None:
+    denied = [f for tau, f in frames_with_tau if 9.6 < tau < 13.6]
+    good = [f for tau, f in frames_with_tau if 6.0 < tau < 8.5 or tau > 14.8]
+    assert len(denied) >= 6 and len(good) >= 5
+    assert {f["position_source"] for f in denied} == {"vio"}
+    assert {f["position_source"] for f in good} == {"gps_3d"}
+    assert all(f.get("lat_deg") is not None for f in denied)
+
+
+def test_local_position_geotags_stay_accurate(flight: Flight) -> None:
+    result = evaluate(flight.scenario, read_frames(flight.mcap), read_truth(flight.truth_exposures))
+    assert result["exposures_missing_from_log"] == 0
+    assert result["geotag_error_unflagged_cm"]["p95"] < 30.0

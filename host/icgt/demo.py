@@ -135,6 +135,13 @@ class GroundStation:
         self.conn.close()
 
 
+def _result_name(result: int | None) -> str:
+    if result is None:
+        return "not ACKed"
+    entry = mavutil.mavlink.enums["MAV_RESULT"].get(result)
+    return entry.name.removeprefix("MAV_RESULT_") if entry is not None else str(result)
+
+
 def _fmt(p: dict[str, Any], unit: str, scale: float = 1.0) -> str:
     if not p["n"]:
         return "n/a"
@@ -278,7 +285,8 @@ def run_demo(scenario_name: str, out_dir: Path) -> dict[str, Any]:
                 f"true exposures            {result['true_exposures']} ({result['exposures_missing_from_log']} "
                 "missing from the log)",
                 f"images on the camera card {len(images)}",
-                f"ground station            start ACK {gs['start_capture_ack']}, stop ACK {gs['stop_capture_ack']}, "
+                f"ground station            start {_result_name(gs['start_capture_ack'])}, "
+                f"stop {_result_name(gs['stop_capture_ack'])}, "
                 f"{gs['camera_image_captured_received']} CAMERA_IMAGE_CAPTURED",
                 f"geotag error (3D)         {_fmt(result['geotag_error_cm'], 'cm')}",
                 f"  frames without pose flags {_fmt(result['geotag_error_unflagged_cm'], 'cm')}",

@@ -64,9 +64,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
     from icgt.control import default_socket_path
     from icgt.recorder import Recorder, load_config
 
-    config = load_config(args.config).with_overrides(
-        device_url=args.device, mavlink_url=args.mavlink, out_dir=args.out
-    )
+    config = load_config(args.config).with_overrides(device_url=args.device, mavlink_url=args.mavlink, out_dir=args.out)
     recorder = Recorder(config, control_socket=args.socket or default_socket_path())
     path = recorder.start()
     print(f"recording to {path}; control socket {args.socket or default_socket_path()}", flush=True)

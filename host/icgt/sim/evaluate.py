@@ -21,7 +21,6 @@ from icgt.recording import RecordingError
 from icgt.sim.scenario import Scenario
 from icgt.sim.trajectory import Trajectory
 
-
 _POSE_FLAGS = {"stale_pose", "pose_extrapolated", "no_fix", "no_attitude", "clock_unsynced"}
 
 

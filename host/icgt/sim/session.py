@@ -180,8 +180,8 @@ class SimSession:
             self._at(tau, "manual_shot")
         if sc.link.drop_probability or sc.link.flip_probability:
             self._at(0.0, f"impair drop={sc.link.drop_probability} flip={sc.link.flip_probability}")
-        for start, end in sc.faults.device_unplugs_s:
-            self._at(start, f"disconnect {end - start}")
+        for start, duration in sc.faults.device_unplugs_s:  # [start_s, duration_s]
+            self._at(start, f"disconnect {duration}")
 
     def _at(self, tau_s: float, command: str) -> None:
         timer = threading.Timer(max(0.0, tau_s - self.tau_s), self.device_command, args=(command,))

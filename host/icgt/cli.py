@@ -130,6 +130,12 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_export(args: argparse.Namespace) -> int:
+    from icgt.export.cli import cmd_export
+
+    return cmd_export(args)
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from icgt.demo import run_demo
 
@@ -179,6 +185,14 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--gcs-port", type=int, default=14551)
     sim.add_argument("--duration", type=float, help="seconds (default: the scenario's)")
     sim.set_defaults(func=_cmd_sim)
+
+    from icgt.export.cli import add_export_arguments
+
+    export = sub.add_parser(
+        "export", help="match the card's JPEGs to a log; write CSV, GeoJSON, geo.txt, OpenSfM, geotagged JPEGs"
+    )
+    add_export_arguments(export)
+    export.set_defaults(func=_cmd_export)
 
     demo = sub.add_parser("demo", help="the main job on simulated hardware, with a summary against truth")
     demo.add_argument("--scenario", default="pier_scan")

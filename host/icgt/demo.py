@@ -266,8 +266,11 @@ def run_demo(scenario_name: str, out_dir: Path) -> dict[str, Any]:
             "camera_image_captured_received": len(gcs.images),
         },
     }
+    recorder_errors = flight.recorder_log.read_text().count("Traceback")
+    summary["recorder_log_tracebacks"] = recorder_errors
     summary["ok"] = bool(
-        start_ack == mavutil.mavlink.MAV_RESULT_ACCEPTED
+        recorder_errors == 0
+        and start_ack == mavutil.mavlink.MAV_RESULT_ACCEPTED
         and stop_ack == mavutil.mavlink.MAV_RESULT_ACCEPTED
         and result["matched"] > 0
         and result["exposures_missing_from_log"] == 0

@@ -139,3 +139,8 @@ def test_every_topic_has_a_schema_and_every_message_decodes(flight: Flight) -> N
     ):
         assert topics.get(topic, 0) > 0, topic
     assert {"icgt.device", "icgt.config", "icgt.calibration"} <= names
+
+
+def test_the_recorder_logged_no_error(flight: Flight) -> None:
+    log = flight.recorder_log.read_text()
+    assert "Traceback" not in log and " ERROR " not in log and " CRITICAL " not in log

@@ -17,13 +17,14 @@ import time
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from icgt import __version__
 from icgt.clocks.autopilot_clock import AutopilotClockFilter, UtcMapper
 from icgt.clocks.device_clock import ClockNotSyncedError, DeviceClockFilter, PpsUtcMapper
+from icgt.clocks.shared import Synchronized
 from icgt.control import ControlServer, Reply, Request
 from icgt.device import CommandRefusedError, DeviceLink, DeviceLinkError, LinkEvent, TimeSyncSample
 from icgt.errors import IcgtError
@@ -128,10 +129,16 @@ class Recorder:
         self.config = config
         self._control_path = control_socket
         self._mono_to_utc_ns = time.time_ns() - time.monotonic_ns()  # fixed: log times stay monotonic
-        self.device_clock = DeviceClockFilter(slow_interval_s=0.1)
-        self.autopilot_clock = AutopilotClockFilter()
-        self.utc = UtcMapper(self.autopilot_clock)
-        self.pps = PpsUtcMapper()
+        # Fed by the link readers, queried by the worker and the geotagger: one lock for all four
+        # (the UTC mapper reads the autopilot filter).
+        clock_lock = threading.RLock()
+        self.device_clock: DeviceClockFilter = cast(
+            DeviceClockFilter, Synchronized(DeviceClockFilter(slow_interval_s=0.1), clock_lock)
+        )
+        autopilot = AutopilotClockFilter()
+        self.autopilot_clock: AutopilotClockFilter = cast(AutopilotClockFilter, Synchronized(autopilot, clock_lock))
+        self.utc: UtcMapper = cast(UtcMapper, Synchronized(UtcMapper(autopilot), clock_lock))
+        self.pps: PpsUtcMapper = cast(PpsUtcMapper, Synchronized(PpsUtcMapper(), clock_lock))
         self.telemetry = TelemetryStore(autopilot_system=config.mavlink.system_id)
         self.geotagger = Geotagger(
             self.telemetry,
@@ -579,17 +586,23 @@ class Recorder:
     # ------------------------------------------------------------------ worker
     def _work(self) -> None:
         while not self._stop.wait(0.02):
-            now = time.monotonic_ns()
-            if self.device is not None and self.device.connected and now >= self._next_sync_ns:
-                with contextlib.suppress(DeviceLinkError):
-                    self.device.request_time_sync()
-                self._next_sync_ns = now + int(self.device_clock.next_exchange_interval_s() * 1e9)
-            self.geotagger.poll(now)
-            if now >= self._next_clock_log_ns:
-                self._next_clock_log_ns = now + 1_000_000_000
-                self._write(topics.CLOCK_DEVICE, self.device_clock.estimate().to_dict(), now)
-                self._write(topics.CLOCK_AUTOPILOT, self.autopilot_clock.estimate().to_dict(), now)
-                self._write(topics.CLOCK_UTC, self.utc.host_to_utc(now).to_dict() | {"host_ns": now}, now)
+            try:
+                self._work_once()
+            except Exception:  # the worker must outlive any bug: frames keep being emitted
+                log.exception("recorder worker error (recording continues)")
+
+    def _work_once(self) -> None:
+        now = time.monotonic_ns()
+        if self.device is not None and self.device.connected and now >= self._next_sync_ns:
+            with contextlib.suppress(DeviceLinkError):
+                self.device.request_time_sync()
+            self._next_sync_ns = now + int(self.device_clock.next_exchange_interval_s() * 1e9)
+        self.geotagger.poll(now)
+        if now >= self._next_clock_log_ns:
+            self._next_clock_log_ns = now + 1_000_000_000
+            self._write(topics.CLOCK_DEVICE, self.device_clock.estimate().to_dict(), now)
+            self._write(topics.CLOCK_AUTOPILOT, self.autopilot_clock.estimate().to_dict(), now)
+            self._write(topics.CLOCK_UTC, self.utc.host_to_utc(now).to_dict() | {"host_ns": now}, now)
 
     def _record_link_summary(self) -> None:
         origin = self.geotagger.origin

@@ -130,6 +130,12 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_match(args: argparse.Namespace) -> int:
+    from icgt.ingest.match import cmd_match
+
+    return cmd_match(args)
+
+
 def _cmd_export(args: argparse.Namespace) -> int:
     from icgt.export.cli import cmd_export
 
@@ -185,6 +191,14 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--gcs-port", type=int, default=14551)
     sim.add_argument("--duration", type=float, help="seconds (default: the scenario's)")
     sim.set_defaults(func=_cmd_sim)
+
+    match = sub.add_parser("match", help="pair the camera card's JPEGs with the recorded exposures")
+    match.add_argument("log", type=Path, help="the recording (.mcap)")
+    match.add_argument("--images", type=Path, required=True, help="folder of the camera card's JPEGs (only read)")
+    match.add_argument("--json", type=Path, help="write the pairing, unmatched and ambiguous items as JSON")
+    match.add_argument("--camera-id", type=int, help="only this camera port's frames")
+    match.add_argument("--tolerance", type=float, help="EXIF time tolerance [s] (default 0.02)")
+    match.set_defaults(func=_cmd_match)
 
     from icgt.export.cli import add_export_arguments
 

@@ -37,8 +37,9 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from icgt.clocks.autopilot_clock import AutopilotClockFilter, UtcMapper
-from icgt.clocks.device_clock import ClockNotSyncedError, DeviceClockFilter, PpsUtcMapper
+from icgt.clocks.device_clock import DeviceClockFilter, PpsUtcMapper
 from icgt.errors import IcgtError
+from icgt.geotag.clock_views import AutopilotClockView, UtcView
 from icgt.geotag.geotagger import GeotagConfig, Geotagger
 from icgt.geotag.record import FrameRecord
 from icgt.ingest.reader import FRAMES_TOPIC, IngestError, LogMessage, Recording, read
@@ -119,37 +120,6 @@ def _device_message(cls: type[M], data: dict[str, Any]) -> M:
     return cls(**kwargs)
 
 
-class _AutopilotClock:
-    """The geotagger's view of the autopilot clock: None before the first TIMESYNC reply."""
-
-    def __init__(self, f: AutopilotClockFilter) -> None:
-        self._f = f
-
-    def host_to_autopilot_us(self, host_ns: int) -> float | None:
-        if not self._f.synced:
-            return None
-        try:
-            return self._f.host_to_autopilot_us(host_ns)
-        except ClockNotSyncedError:
-            return None
-
-
-class _Utc:
-    """UTC of a device instant as the recorder derives it: PPS if locked, else via the autopilot, else the host."""
-
-    def __init__(self, pps: PpsUtcMapper, utc: UtcMapper) -> None:
-        self._pps = pps
-        self._utc = utc
-
-    def utc_at(self, device_us: float, host_ns: int) -> tuple[int, float, str] | None:
-        if self._pps.locked(device_us) and self._pps.labelled:
-            return int(self._pps.device_to_utc_us(device_us)), self._pps.uncertainty_us(device_us), "pps"
-        est = self._utc.host_to_utc(host_ns)
-        if not est.valid:
-            return None
-        return int(est.utc_us), est.uncertainty_us, est.source.value
-
-
 class _StopEmitting(Exception):  # noqa: N818 - a control-flow signal, not an error
     """Raised by the emit callback to end Geotagger.poll after the frame the log says was written here."""
 
@@ -181,7 +151,7 @@ class _Replay:
         self.tm = TelemetryStore(autopilot_system=autopilot_system)
         self.frames: list[FrameRecord] = []
         self.geotagger = Geotagger(
-            self.tm, self.dev, _AutopilotClock(self.ap), _Utc(self.pps, self.utc), config, self._emit
+            self.tm, self.dev, AutopilotClockView(self.ap), UtcView(self.pps, self.utc), config, self._emit
         )
         self.lookahead_ns = None if lookahead_s is None else int(lookahead_s * 1e9)
         self.pending: dict[int, _Exp] = {}  # handed to the geotagger, not emitted yet

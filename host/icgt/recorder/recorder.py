@@ -23,13 +23,14 @@ import numpy as np
 
 from icgt import __version__
 from icgt.clocks.autopilot_clock import AutopilotClockFilter, UtcMapper
-from icgt.clocks.device_clock import ClockNotSyncedError, DeviceClockFilter, PpsUtcMapper
+from icgt.clocks.device_clock import DeviceClockFilter, PpsUtcMapper
 from icgt.clocks.shared import Synchronized
 from icgt.control import ControlServer, Reply, Request
 from icgt.device import CommandRefusedError, DeviceLink, DeviceLinkError, LinkEvent, TimeSyncSample
 from icgt.errors import IcgtError
 from icgt.geodesy import q_conjugate, q_multiply
 from icgt.geotag import FrameRecord, Geotagger
+from icgt.geotag.clock_views import AutopilotClockView, UtcView
 from icgt.geotag.geotagger import _Q_CAM_TO_BODY_BASE
 from icgt.mavlink.camera import CameraComponent, CameraConfig, CameraInfo, CapturedImage, CommandResult
 from icgt.mavlink.link import LinkConfig, MavlinkLink, Received, StreamRate, TimesyncSample
@@ -91,37 +92,6 @@ class RecorderStatus:
     last_status: dict[str, Any] | None
 
 
-class _AutopilotClockAdapter:
-    """The geotagger's view of the autopilot clock: None instead of an exception before sync."""
-
-    def __init__(self, f: AutopilotClockFilter) -> None:
-        self._f = f
-
-    def host_to_autopilot_us(self, host_ns: int) -> float | None:
-        if not self._f.synced:
-            return None
-        try:
-            return self._f.host_to_autopilot_us(host_ns)
-        except ClockNotSyncedError:
-            return None
-
-
-class _UtcAdapter:
-    """UTC of a device instant: PPS if locked, else via the autopilot's GPS time, else the host clock."""
-
-    def __init__(self, pps: PpsUtcMapper, utc: UtcMapper) -> None:
-        self._pps = pps
-        self._utc = utc
-
-    def utc_at(self, device_us: float, host_ns: int) -> tuple[int, float, str] | None:
-        if self._pps.locked(device_us) and self._pps.labelled:
-            return int(self._pps.device_to_utc_us(device_us)), self._pps.uncertainty_us(device_us), "pps"
-        est = self._utc.host_to_utc(host_ns)
-        if not est.valid:
-            return None
-        return int(est.utc_us), est.uncertainty_us, est.source.value
-
-
 class Recorder:
     """One recording session. start() connects and begins writing; stop() ends it cleanly."""
 
@@ -143,8 +113,8 @@ class Recorder:
         self.geotagger = Geotagger(
             self.telemetry,
             self.device_clock,
-            _AutopilotClockAdapter(self.autopilot_clock),
-            _UtcAdapter(self.pps, self.utc),
+            AutopilotClockView(self.autopilot_clock),
+            UtcView(self.pps, self.utc),
             config.camera,
             self._on_frame,
         )

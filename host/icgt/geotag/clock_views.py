@@ -1,0 +1,37 @@
+"""The geotagger's views of the clock filters, shared by the live recorder and the offline recompute."""
+
+from __future__ import annotations
+
+from icgt.clocks.autopilot_clock import AutopilotClockFilter, UtcMapper
+from icgt.clocks.device_clock import ClockNotSyncedError, PpsUtcMapper
+
+
+class AutopilotClockView:
+    """Host -> autopilot boot time, or None before the first TIMESYNC reply (instead of an exception)."""
+
+    def __init__(self, f: AutopilotClockFilter) -> None:
+        self._f = f
+
+    def host_to_autopilot_us(self, host_ns: int) -> float | None:
+        if not self._f.synced:
+            return None
+        try:
+            return self._f.host_to_autopilot_us(host_ns)
+        except ClockNotSyncedError:
+            return None
+
+
+class UtcView:
+    """UTC of a device instant: PPS if locked, else via the autopilot's GPS time, else the host clock."""
+
+    def __init__(self, pps: PpsUtcMapper, utc: UtcMapper) -> None:
+        self._pps = pps
+        self._utc = utc
+
+    def utc_at(self, device_us: float, host_ns: int) -> tuple[int, float, str] | None:
+        if self._pps.locked(device_us) and self._pps.labelled:
+            return int(self._pps.device_to_utc_us(device_us)), self._pps.uncertainty_us(device_us), "pps"
+        est = self._utc.host_to_utc(host_ns)
+        if not est.valid:
+            return None
+        return int(est.utc_us), est.uncertainty_us, est.source.value

@@ -159,6 +159,11 @@ class DeviceLink:
     def decoder_stats(self) -> dict[str, int | None]:
         return self._decoder.stats.as_dict()
 
+    @property
+    def frames_rejected(self) -> int:
+        """Device frames rejected for any reason (SPEC.md §6)."""
+        return self._decoder.stats.rejected
+
     # ---------------------------------------------------------------- commands
     def send(self, message: Message, *, pending: _Pending | None = None) -> int:
         """Frame and send one message; returns its sequence number. Raises DeviceLinkError if the port is down.

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from icgt.clocks.autopilot_clock import AutopilotClockFilter, UtcMapper
-from icgt.clocks.device_clock import ClockNotSyncedError, PpsUtcMapper
+from icgt.clocks.device_clock import ClockNotSyncedError, DeviceClockFilter, PpsUtcMapper
 
 
 class AutopilotClockView:
@@ -35,3 +35,12 @@ class UtcView:
         if not est.valid:
             return None
         return int(est.utc_us), est.uncertainty_us, est.source.value
+
+
+def add_pps_edge(pps: PpsUtcMapper, utc: UtcMapper, device_clock: DeviceClockFilter, t_us: int, count: int) -> None:
+    """Feed one PPS edge, labelled with the coarse UTC of its second when the device clock is mapped."""
+    coarse = None
+    if device_clock.settled:
+        est = utc.host_to_utc(device_clock.device_to_host_ns(t_us))
+        coarse = est.utc_us if est.valid else None
+    pps.add_pps(t_us, count, coarse)

@@ -39,7 +39,7 @@ from typing import Any, TypeVar
 from icgt.clocks.autopilot_clock import AutopilotClockFilter, UtcMapper
 from icgt.clocks.device_clock import DeviceClockFilter, PpsUtcMapper
 from icgt.errors import IcgtError
-from icgt.geotag.clock_views import AutopilotClockView, UtcView
+from icgt.geotag.clock_views import AutopilotClockView, UtcView, add_pps_edge
 from icgt.geotag.geotagger import GeotagConfig, Geotagger
 from icgt.geotag.record import FrameRecord
 from icgt.ingest.reader import FRAMES_TOPIC, IngestError, LogMessage, Recording, read
@@ -247,11 +247,7 @@ class _Replay:
         elif isinstance(msg, Range):
             self.geotagger.add_range(msg)
         elif isinstance(msg, Pps):
-            coarse = None
-            if self.dev.settled:
-                est = self.utc.host_to_utc(self.dev.device_to_host_ns(msg.t_us))
-                coarse = est.utc_us if est.valid else None
-            self.pps.add_pps(msg.t_us, msg.pps_count, coarse)
+            add_pps_edge(self.pps, self.utc, self.dev, msg.t_us, msg.pps_count)
         elif isinstance(msg, Hello):
             if self.hello_t_us is None:
                 self.hello_t_us = msg.t_us

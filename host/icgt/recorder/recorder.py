@@ -30,7 +30,7 @@ from icgt.device import CommandRefusedError, DeviceLink, DeviceLinkError, LinkEv
 from icgt.errors import IcgtError
 from icgt.geodesy import q_conjugate, q_multiply
 from icgt.geotag import FrameRecord, Geotagger
-from icgt.geotag.clock_views import AutopilotClockView, UtcView
+from icgt.geotag.clock_views import AutopilotClockView, UtcView, add_pps_edge
 from icgt.geotag.geotagger import _Q_CAM_TO_BODY_BASE
 from icgt.mavlink.camera import CameraComponent, CameraConfig, CameraInfo, CapturedImage, CommandResult
 from icgt.mavlink.link import LinkConfig, MavlinkLink, Received, StreamRate, TimesyncSample
@@ -341,11 +341,7 @@ class Recorder:
         elif isinstance(msg, Range):
             self.geotagger.add_range(msg)
         elif isinstance(msg, Pps):
-            coarse = None
-            if self.device_clock.settled:
-                est = self.utc.host_to_utc(self.device_clock.device_to_host_ns(msg.t_us))
-                coarse = est.utc_us if est.valid else None
-            self.pps.add_pps(msg.t_us, msg.pps_count, coarse)
+            add_pps_edge(self.pps, self.utc, self.device_clock, msg.t_us, msg.pps_count)
         elif isinstance(msg, Status):
             self.last_status = msg
         elif isinstance(msg, Log):
@@ -593,18 +589,7 @@ class Recorder:
         log.info(
             "device link summary: %s frames, %s rejected, %s messages lost in %s gaps",
             stats.get("frames_ok"),
-            sum(
-                int(stats.get(k) or 0)
-                for k in (
-                    "oversized",
-                    "cobs_error",
-                    "truncated",
-                    "crc_error",
-                    "wrong_version",
-                    "unknown_type",
-                    "bad_length",
-                )
-            ),
+            self.device.frames_rejected,
             stats.get("seq_missed"),
             stats.get("seq_gaps"),
         )
@@ -627,18 +612,7 @@ class Recorder:
             device_clock_uncertainty_us=est.uncertainty_ns / 1000.0 if est.valid else None,
             sequence_gaps=int(stats.get("seq_gaps") or 0),
             messages_lost=int(stats.get("seq_missed") or 0),
-            frames_rejected=sum(
-                int(stats.get(k) or 0)
-                for k in (
-                    "oversized",
-                    "cobs_error",
-                    "truncated",
-                    "crc_error",
-                    "wrong_version",
-                    "unknown_type",
-                    "bad_length",
-                )
-            ),
+            frames_rejected=self.device.frames_rejected if self.device is not None else 0,
             pending_frames=self.geotagger.pending,
             last_status=asdict(self.last_status) if self.last_status is not None else None,
         )

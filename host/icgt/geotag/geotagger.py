@@ -267,7 +267,7 @@ class Geotagger:
                 cosang = abs(float(axis_enu @ n)) / float(np.linalg.norm(n))
                 incidence = math.degrees(math.acos(min(1.0, cosang)))
                 scale = scale / max(cosang, 1e-3)  # along the tilt, one pixel covers more surface
-        blur = self._blur_px(imu, pos, e.duration_us, scale)
+        blur = self._blur_px(imu, mid_boot, e.duration_us, scale)
         if blur is not None and blur > self._cfg.blur_limit_px:
             flags.append(FrameFlag.MOTION_BLUR.value)
         roll = pitch = yaw = None
@@ -471,7 +471,7 @@ class Geotagger:
         return r, age
 
     def _blur_px(
-        self, imu: DeviceSample | None, pos: object, duration_us: int, scale_mm_per_px: float | None
+        self, imu: DeviceSample | None, mid_boot: float | None, duration_us: int, scale_mm_per_px: float | None
     ) -> float | None:
         """Rotation blur = |omega| x exposure x focal length [px] (plus translation when the speed is known)."""
         if imu is None or not isinstance(imu.msg, Imu) or duration_us <= 0:
@@ -479,7 +479,9 @@ class Geotagger:
         m = imu.msg
         omega = math.sqrt(m.gyro_x_rad_s**2 + m.gyro_y_rad_s**2 + m.gyro_z_rad_s**2)
         blur = omega * duration_us * 1e-6 * self._cfg.focal_length_px
-        fused = self._tm.fused.latest()
+        # The velocity of the fused sample at or before mid-exposure (not the newest one, which
+        # would make the figure depend on when the frame happened to be emitted).
+        fused = self._tm.fused.bracket(int(mid_boot))[0] if mid_boot is not None else None
         if scale_mm_per_px and fused is not None:
             speed = math.sqrt(fused.vn_mps**2 + fused.ve_mps**2 + fused.vd_mps**2)
             blur += speed * duration_us * 1e-6 * 1000.0 / scale_mm_per_px

@@ -46,6 +46,7 @@ from __future__ import annotations
 import argparse
 import bisect
 import calendar
+import itertools
 import json
 import logging
 import math
@@ -93,6 +94,7 @@ _MAX_SEGMENT_CELLS = 4_000_000
 _FIRST_PASS_WIDEN_MAX_S = 0.05
 _MAX_SCAN_S = 3.0
 _DRIFT_REPORT_PPM = 20.0
+_SWAP_MARGIN_US = 10_000.0
 _JPEG_SUFFIXES = (".jpg", ".jpeg")
 _IFD_EXIF = 0x8769
 _TAG_DATETIME_ORIGINAL = 0x9003
@@ -723,6 +725,7 @@ def match_times(
             note = "the camera clock offset is ambiguous: the pairs that depend on it are not made"
             if note not in result.notes:
                 result.notes.append(note)
+    _swap_rule(images, fr, model, outcome)
     _untimed_rule(images, fr, outcome)
     _report(images, fr, model, outcome, result)
     return result
@@ -832,6 +835,53 @@ def _scan(
             out.append((alt.cost, m, alt, k))
             seen[signature] = out[-1]
     return out
+
+
+def _swap_rule(times: list[ImageTime], fr: _Frames, model: _Model, out: _Outcome) -> None:
+    """A manual shot during a trigger's shutter lag: the card may number the two either way.
+
+    A camera numbers its files in the order it takes the shots, but a shot fired by hand while a
+    triggered one waits out its shutter lag can be exposed first (and its flash-sync edge taken for
+    the trigger's). If an unsolicited exposure starts between a neighbouring trigger and the end of
+    that trigger's usual lag, and the EXIF times allow both orders, both images are ambiguous."""
+    lags = [
+        r.start_device_us - r.trigger_device_us
+        for r in fr.recs
+        if r.trigger_device_us > 0 and FrameFlag.NO_FEEDBACK.value not in r.flags
+    ]
+    if not lags:
+        return
+    lag_us = float(np.median(lags)) + _SWAP_MARGIN_US
+    p = model.predict(fr.x)
+    frame_image = {j: i for i, j in out.pairs.items()}
+
+    def fits(i: int, j: int) -> bool:
+        t = times[i]
+        if t.time_s is None or t.resolution_s is None:
+            return True
+        tol = float(fr.tol[j])
+        return t.time_s - tol <= float(p[j]) <= t.time_s + t.resolution_s + tol
+
+    eligible = [j for j in range(len(fr.recs)) if fr.eligible[j]]
+    for j, k in itertools.pairwise(eligible):
+        a, b = fr.recs[j], fr.recs[k]
+        unsolicited = [x for x in (a, b) if FrameFlag.UNSOLICITED.value in x.flags]
+        triggered = [x for x in (a, b) if x.trigger_device_us > 0]
+        if len(unsolicited) != 1 or len(triggered) != 1:
+            continue
+        u, t = unsolicited[0], triggered[0]
+        if not t.trigger_device_us - _SWAP_MARGIN_US <= u.start_device_us <= t.trigger_device_us + lag_us:
+            continue
+        ij, ik = frame_image.get(j), frame_image.get(k)
+        if ij is None or ik is None or ij not in out.pairs or ik not in out.pairs:
+            continue
+        if not (fits(ij, k) and fits(ik, j)):
+            continue
+        why = "a manual shot during a trigger's shutter lag: the card may number the two either way"
+        for i in (ij, ik):
+            out.ambiguous[i] = ([j, k], why)
+            del out.pairs[i]
+        out.frame_ambiguous.update((j, k))
 
 
 def _untimed_rule(times: list[ImageTime], fr: _Frames, out: _Outcome) -> None:

@@ -288,7 +288,10 @@ int main(int argc, char** argv) {
       }
     }
     link.pump(now_ns);
-    board.run_until(map.device_us_at_tau(tau));
+    // Run the board up to the time *after* taking in the host's bytes: with the loop-start time
+    // the bytes would wait a whole loop iteration in virtual time and the reply would leave that
+    // much later in real time than its device stamp says (a path asymmetry the host cannot see).
+    board.run_until(map.device_us_at_tau(map.tau_s_at_monotonic(monotonic_ns())));
     link.pump(monotonic_ns());
 
     const auto& ex = board.camera().exposures();

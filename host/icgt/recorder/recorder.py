@@ -103,7 +103,8 @@ class Recorder:
         # (the UTC mapper reads the autopilot filter).
         clock_lock = threading.RLock()
         self.device_clock: DeviceClockFilter = cast(
-            DeviceClockFilter, Synchronized(DeviceClockFilter(slow_interval_s=0.1), clock_lock)
+            DeviceClockFilter,
+            Synchronized(DeviceClockFilter(slow_interval_s=0.1, frame_us=config.device.usb_frame_us), clock_lock),
         )
         autopilot = AutopilotClockFilter()
         self.autopilot_clock: AutopilotClockFilter = cast(AutopilotClockFilter, Synchronized(autopilot, clock_lock))

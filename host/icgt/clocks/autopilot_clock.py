@@ -145,14 +145,7 @@ class AutopilotClockFilter:
 
     @property
     def counters(self) -> dict[str, int]:
-        ln = self._line
-        return {
-            "accepted": ln.accepted,
-            "rejected_rtt": ln.rejected_rtt,
-            "rejected_invalid": ln.rejected_invalid,
-            "resets": ln.resets,
-            "in_window": len(ln),
-        }
+        return self._line.counters()
 
 
 class UtcSource(Enum):

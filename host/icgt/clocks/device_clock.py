@@ -632,6 +632,16 @@ class _TwoWayLine:
             frame_locked=fit.frame_locked,
         )
 
+    def counters(self) -> dict[str, int]:
+        """Accepted / rejected / reset counts since construction, and the samples in the window."""
+        return {
+            "accepted": self.accepted,
+            "rejected_rtt": self.rejected_rtt,
+            "rejected_invalid": self.rejected_invalid,
+            "resets": self.resets,
+            "in_window": len(self),
+        }
+
     def span_ns(self) -> float:
         fit = self.fit()
         return 0.0 if fit is None else fit.x_max - fit.x_min
@@ -752,14 +762,7 @@ class DeviceClockFilter:
     @property
     def counters(self) -> dict[str, int]:
         """Accepted / rejected / reset counts since construction (for STATUS-like logging)."""
-        ln = self._line
-        return {
-            "accepted": ln.accepted,
-            "rejected_rtt": ln.rejected_rtt,
-            "rejected_invalid": ln.rejected_invalid,
-            "resets": ln.resets,
-            "in_window": len(ln),
-        }
+        return self._line.counters()
 
 
 # ---------------------------------------------------------------------------------------------

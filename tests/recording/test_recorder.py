@@ -166,7 +166,7 @@ def test_a_lone_message_reaches_the_disk_within_the_chunk_interval(tmp_path: Pat
             time.sleep(0.02)
         waited = 2.0 - (deadline - time.monotonic())
         assert read_unfinished(path)[0] == [("/fix", T0)], "the chunk was not closed by the timer"
-        assert waited < 0.6
+        assert waited < 1.5  # a 0.2 s timer, with room for a shared machine's scheduling
         assert rec.stats().chunks == 1 and rec.stats().messages == 1
     finally:
         rec.close()

@@ -166,13 +166,15 @@ def test_streams_arrive_stamped_on_the_boot_clock(rig: Rig) -> None:
     traj = Trajectory(rig.scenario)
     frame = LocalFrame(37.8813, 127.7298, 76.0 + 24.9)
     checked = 0
+    delays_ms: dict[str, list[float]] = {}
     for recv_ns, _, m in log:
         if not hasattr(m, "time_boot_ms") and m.get_type() != "GPS_RAW_INT":
             continue
         stamp_us = m.time_usec if m.get_type() == "GPS_RAW_INT" else m.time_boot_ms * 1000
         ap_at_receipt_us = float(rig.clocks.tau_to_autopilot_us(rig.clocks.host_ns_to_tau(recv_ns)))
         delay_ms = (ap_at_receipt_us - stamp_us) / 1000.0
-        assert 1.4 <= delay_ms <= 50.0, (m.get_type(), delay_ms)  # sent ~2 ms after its stamp
+        assert delay_ms >= 1.4, (m.get_type(), delay_ms)  # sent ~2 ms after its stamp, never before
+        delays_ms.setdefault(m.get_type(), []).append(delay_ms)
         tau = stamp_tau(rig.clocks, stamp_us)
         st = traj.state(np.array([tau]))
         ned = enu_to_ned(st.position_enu_m[0])
@@ -193,6 +195,10 @@ def test_streams_arrive_stamped_on_the_boot_clock(rig: Rig) -> None:
             assert m.alt == pytest.approx((float(h) - 24.9) * 1000, abs=1.5)
             checked += 1
     assert checked >= 20
+    # Upper bound on the typical delay only: a receiver the shared machine descheduled for a
+    # moment gets some messages late, which says nothing about the autopilot's stamps.
+    for kind, delays in delays_ms.items():
+        assert float(np.median(delays)) <= 50.0, (kind, sorted(delays))
 
 
 def test_no_fix_until_acquired_then_gps_time(rig: Rig) -> None:

@@ -89,6 +89,11 @@ def test_capture_stream_has_the_rates_gapless_indices_and_the_simulated_clock(de
     indices = [r.message.image_index for r, _ in got if isinstance(r.message, Exposure)]
     assert indices == list(range(indices[0], indices[0] + len(indices)))
     assert device.decoder.stats.seq_missed == 0 and device.decoder.stats.rejected == 0
+    # The device clock the simulator runs (offset and drift given above) as the host sees it: no
+    # message arrives before its device stamp, and in every half second the earliest arrival is
+    # within the link's latency. Only the lower envelope is bounded from above: a reader that the
+    # shared machine descheduled for a while receives late, which says nothing about the clock.
+    lowest_lag_us: dict[int, float] = {}
     for r, host_ns in got:
         m = r.message
         t = m.t_us if isinstance(m, Status) else m.read_end_t_us if isinstance(m, Imu) else None
@@ -96,7 +101,11 @@ def test_capture_stream_has_the_rates_gapless_indices_and_the_simulated_clock(de
             t = m.read_t_us
         if t is not None:
             lag_us = device.device_us_at(host_ns) - t
-            assert -100 <= lag_us <= 20_000, (m.NAME, lag_us)  # sent before received, within the link's latency
+            assert lag_us >= -100, (m.NAME, lag_us)  # never received before it was stamped
+            window = int(t // 500_000)
+            lowest_lag_us[window] = min(lag_us, lowest_lag_us.get(window, float("inf")))
+    assert len(lowest_lag_us) >= 9
+    assert all(lag <= 20_000 for lag in lowest_lag_us.values()), lowest_lag_us
 
 
 def test_impaired_link_is_seen_by_the_decoder_which_recovers(device: Device) -> None:

@@ -161,7 +161,8 @@ def header() -> str:
 
 def device_exchanges(seed: int, minutes: float, link: UsbLinkModel, truth: RemoteClockTruth) -> list[Exchange]:
     rng = np.random.default_rng(seed)
-    sims = simulate_exchanges(exchange_schedule(minutes * 60.0, rng), truth, link, rng)
+    # 10 Hz after the first 5 s, as the recorder exchanges (icgt.recorder.Recorder).
+    sims = simulate_exchanges(exchange_schedule(minutes * 60.0, rng, steady_hz=10.0), truth, link, rng)
     return [(e.host_tx_ns, float(e.device_rx_us), float(e.device_tx_us), e.host_rx_ns) for e in sims]
 
 

@@ -86,6 +86,7 @@ class PtyPort final : public HostPort {
   }
 
   std::string url() const override { return link_; }
+  int readable_fd() const override { return master_; }
 
  private:
   void close_master() {
@@ -155,6 +156,7 @@ class TcpPort final : public HostPort {
   }
   void replug() override { unplugged_ = false; }
   std::string url() const override { return "socket://127.0.0.1:" + std::to_string(port_); }
+  int readable_fd() const override { return client_; }
 
  private:
   void drop_client() {

@@ -21,6 +21,9 @@ class HostPort {
   // Simulated unplug: the port disappears (the host's reads fail) until replug().
   virtual void unplug() = 0;
   virtual void replug() = 0;
+  // The descriptor that turns readable when the host sends (-1 while none): the simulator
+  // sleeps on it, so a request is taken in when it arrives, not at the next loop iteration.
+  [[nodiscard]] virtual int readable_fd() const = 0;
   // What the host opens: a device path, or socket://127.0.0.1:PORT.
   [[nodiscard]] virtual std::string url() const = 0;
 };

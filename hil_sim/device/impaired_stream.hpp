@@ -70,6 +70,10 @@ class ImpairedStream final : public hal::ByteStream {
   // Real-time side, from the simulator's main loop: moves host bytes in and due device
   // bytes out, and refreshes the connection state.
   void pump(uint64_t now_monotonic_ns);
+  // When the next byte for the host is due [monotonic ns]; UINT64_MAX if none is queued.
+  [[nodiscard]] uint64_t next_release_ns() const {
+    return to_host_.empty() ? UINT64_MAX : to_host_.front().release;
+  }
 
   void set_impairment(const LinkImpairment& impairment) { impairment_ = impairment; }
   [[nodiscard]] const LinkImpairment& impairment() const { return impairment_; }

@@ -49,7 +49,6 @@ def recorder_config_text(sc: Scenario, out_dir: Path) -> str:
     return f"""# written by icgt demo for scenario {sc.name}
 [device]
 set_rtc = true
-usb_frame_us = {sc.link.usb_latency_us or 1000}
 
 [mavlink]
 system_id = 1

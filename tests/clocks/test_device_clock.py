@@ -13,6 +13,8 @@ from hypothesis import strategies as st
 from icgt.clocks import ClockNotSyncedError, DeviceClockFilter, ExchangeStatus, ResetReason
 from icgt.clocks.simulate import RemoteClockTruth, SimExchange, UsbLinkModel, exchange_schedule, simulate_exchanges
 
+EXCHANGE_HZ = 10.0  # the recorder's TIME_SYNC rate after the first seconds
+
 CLEAN = UsbLinkModel(
     frame_us=0.0,
     out_floor_us=30.0,
@@ -48,10 +50,17 @@ def online_errors(
     return np.array(errors), np.array(bounds)
 
 
-def run(seed: int, duration_s: float = 600.0, link: UsbLinkModel | None = None, **truth_kw: float) -> tuple:
+def run(
+    seed: int,
+    duration_s: float = 600.0,
+    link: UsbLinkModel | None = None,
+    steady_hz: float = EXCHANGE_HZ,
+    **truth_kw: float,
+) -> tuple:
     rng = np.random.default_rng(seed)
     truth = RemoteClockTruth(**truth_kw)  # type: ignore[arg-type]
-    exchanges = simulate_exchanges(exchange_schedule(duration_s, rng), truth, link or UsbLinkModel(), rng)
+    schedule = exchange_schedule(duration_s, rng, steady_hz=steady_hz)
+    exchanges = simulate_exchanges(schedule, truth, link or UsbLinkModel(), rng)
     filt = DeviceClockFilter()
     errors, bounds = online_errors(exchanges, truth, filt)
     return errors, bounds, filt
@@ -84,7 +93,7 @@ def test_exact_recovery_property(offset_us: float, drift_ppm: float, floor_us: f
     link = dataclasses.replace(CLEAN, out_floor_us=floor_us, in_floor_us=floor_us)
     rng = np.random.default_rng(seed)
     truth = RemoteClockTruth(offset_us=offset_us, drift_ppm=drift_ppm)
-    exchanges = simulate_exchanges(exchange_schedule(12.0, rng), truth, link, rng)
+    exchanges = simulate_exchanges(exchange_schedule(12.0, rng, steady_hz=EXCHANGE_HZ), truth, link, rng)
     filt = DeviceClockFilter()
     for ex in exchanges:
         assert (
@@ -99,8 +108,10 @@ def test_exact_recovery_property(offset_us: float, drift_ppm: float, floor_us: f
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_p95_within_50us_usb_jitter_50ppm(seed: int) -> None:
-    # 10 min: 5 Hz for 5 s, then 1 Hz; USB full-speed frames both ways, jitter, scheduler tail, 2 % spikes.
-    errors, bounds, filt = run(seed, drift_ppm=50.0)
+    # 5 min: 5 Hz for 5 s, then 10 Hz as the recorder asks; USB full-speed frames both ways, jitter,
+    # scheduler tail, 2 % spikes. (At 1 Hz a reply lands within a few us of a 1 ms frame's poll only
+    # about once a minute, and p95 is ~100 us: the reason the recorder exchanges at 10 Hz.)
+    errors, bounds, filt = run(seed, duration_s=300.0, drift_ppm=50.0)
     p95_us = np.percentile(np.abs(errors), 95) / 1000.0
     assert p95_us <= 50.0, p95_us
     assert filt.estimate().drift_ppm == pytest.approx(50.0, abs=0.5)
@@ -112,7 +123,7 @@ def test_outliers_rejected_and_harmless() -> None:
     link = dataclasses.replace(UsbLinkModel(), spike_probability=0.15, spike_min_us=12_000.0, spike_max_us=60_000.0)
     rng = np.random.default_rng(7)
     truth = RemoteClockTruth()
-    exchanges = simulate_exchanges(exchange_schedule(300.0, rng), truth, link, rng)
+    exchanges = simulate_exchanges(exchange_schedule(300.0, rng, steady_hz=EXCHANGE_HZ), truth, link, rng)
     filt = DeviceClockFilter()
     errors, _ = online_errors(exchanges, truth, filt)
     spikes = sum(ex.spike for ex in exchanges)
@@ -143,7 +154,7 @@ def test_reboot_detected_and_reconverges() -> None:
     # Reboot 60 s in: the device clock restarts near 0, same crystal.
     t_reboot = before.host_t0_ns + 60_000_000_000
     after = RemoteClockTruth(offset_us=-60e6 * (1 + 40e-6) + 1_500_000.0, drift_ppm=40.0)
-    sched = exchange_schedule(180.0, rng)
+    sched = exchange_schedule(180.0, rng, steady_hz=EXCHANGE_HZ)
     first = simulate_exchanges([t for t in sched if t < t_reboot], before, UsbLinkModel(), rng)
     second = simulate_exchanges([t for t in sched if t >= t_reboot], after, UsbLinkModel(), rng)
     filt = DeviceClockFilter()
@@ -164,7 +175,7 @@ def test_reboot_detected_and_reconverges() -> None:
 def test_forward_jump_detected() -> None:
     rng = np.random.default_rng(12)
     truth = RemoteClockTruth()
-    exchanges = simulate_exchanges(exchange_schedule(30.0, rng), truth, UsbLinkModel(), rng)
+    exchanges = simulate_exchanges(exchange_schedule(30.0, rng, steady_hz=EXCHANGE_HZ), truth, UsbLinkModel(), rng)
     filt = DeviceClockFilter()
     for ex in exchanges[:-1]:
         filt.add_exchange(ex.host_tx_ns, ex.device_rx_us, ex.device_tx_us, ex.host_rx_ns)
@@ -181,7 +192,7 @@ def test_gap_extrapolation_with_honest_bound() -> None:
     for seed in range(6):
         rng = np.random.default_rng(100 + seed)
         truth = RemoteClockTruth(drift_ppm=float(rng.uniform(-80, 80)))
-        sched = exchange_schedule(200.0, rng, gaps=[(120.0, 30.0)])
+        sched = exchange_schedule(200.0, rng, steady_hz=EXCHANGE_HZ, gaps=[(120.0, 30.0)])
         exchanges = simulate_exchanges(sched, truth, UsbLinkModel(), rng)
         filt = DeviceClockFilter()
         before_gap = [ex for ex in exchanges if ex.host_tx_ns < truth.host_t0_ns + 120e9]
@@ -203,7 +214,7 @@ def test_gap_extrapolation_with_honest_bound() -> None:
 def test_schedule_hint_fast_then_slow() -> None:
     rng = np.random.default_rng(5)
     truth = RemoteClockTruth()
-    exchanges = simulate_exchanges(exchange_schedule(60.0, rng), truth, UsbLinkModel(), rng)
+    exchanges = simulate_exchanges(exchange_schedule(60.0, rng, steady_hz=EXCHANGE_HZ), truth, UsbLinkModel(), rng)
     filt = DeviceClockFilter(seed=1)
     assert 0.18 <= filt.next_exchange_interval_s() <= 0.22
     for ex in exchanges:
@@ -218,7 +229,7 @@ def test_schedule_hint_fast_then_slow() -> None:
 def test_window_is_bounded() -> None:
     rng = np.random.default_rng(9)
     truth = RemoteClockTruth()
-    sched = exchange_schedule(900.0, rng)
+    sched = exchange_schedule(900.0, rng, steady_hz=EXCHANGE_HZ)
     exchanges = simulate_exchanges(sched, truth, UsbLinkModel(), rng)
     filt = DeviceClockFilter(window_s=30.0, max_samples=40)
     sizes = []
@@ -243,11 +254,19 @@ def test_estimate_record_for_the_log() -> None:
         "offset_ns",
     ):
         assert key in record
-    assert record["frame_locked"] is True  # the simulated link releases requests on the frame grid
 
 
-def test_async_request_link_not_frame_locked() -> None:
-    # Requests that go out at once (real bulk OUT): no frame locking, the symmetric envelope is used.
-    errors, _, filt = run(4, duration_s=300.0, link=dataclasses.replace(UsbLinkModel(), out_on_frames=False))
-    assert not filt.estimate().frame_locked
+def test_async_request_link() -> None:
+    # Requests that go out at once (real bulk OUT) and replies that wait for the frame.
+    errors, _, _ = run(4, duration_s=300.0, link=dataclasses.replace(UsbLinkModel(), out_on_frames=False))
     assert np.percentile(np.abs(errors), 95) <= 80_000
+
+
+def test_the_devices_random_reply_hold_is_what_removes_the_half_frame_bias() -> None:
+    # A device that answered at once would always reply at the request's phase of the frame grid,
+    # so its replies wait most of a frame for the next poll and never reach their floor.
+    prompt = dataclasses.replace(UsbLinkModel(), reply_hold_max_us=0.0)
+    at_once, _, _ = run(5, duration_s=300.0, link=prompt)
+    held, _, _ = run(5, duration_s=300.0)
+    assert np.median(at_once) >= 300_000  # the mapping lands late by about half of the 1 ms frame
+    assert np.percentile(np.abs(held), 95) <= 50_000

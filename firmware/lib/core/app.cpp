@@ -115,10 +115,14 @@ void App::poll() {
     send_hello(start);  // a host (re)opened the port: tell it who we are, once it is listening
     send_after_t_us_ = start + kLinkSettleUs;
   }
-  if (!up && link_up_) outbox_.link_lost();
+  if (!up && link_up_) {
+    outbox_.link_lost();
+    time_sync_.clear();
+  }
   link_up_ = up;
 
   receive(start);
+  time_sync_.release_due(ports_.clock.now_us(), outbox_);
   timebase_.poll(start);
   drain_exposures(start);
   drain_pps();
@@ -197,7 +201,7 @@ void App::on_frame(uint64_t rx_t_us) {
       reply.host_t_ns = req.host_t_ns;
       reply.request_seq = rx_.header().seq;
       reply.device_rx_t_us = rx_t_us;
-      (void)outbox_.push(reply);  // device_tx_t_us is filled when the frame is built
+      time_sync_.hold(reply, rx_t_us, outbox_);  // device_tx_t_us is filled when the frame is built
       return;
     }
     case proto::MsgId::SET_TIME: {

@@ -14,6 +14,7 @@
 #include "core/exposure_pairing.hpp"
 #include "core/lidar_lite.hpp"
 #include "core/outbox.hpp"
+#include "core/time_sync_responder.hpp"
 #include "core/timebase.hpp"
 #include "core/trigger.hpp"
 #include "frame.hpp"
@@ -104,6 +105,7 @@ class App {
   Bno055 imu_;
   LidarLite lidar_;
   Outbox outbox_;
+  TimeSyncResponder time_sync_;
   proto::StreamDecoder rx_;
 
   bool imu_enabled_;

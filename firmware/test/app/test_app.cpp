@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "board/sim_board.hpp"
+#include "core/time_sync_responder.hpp"
 #include "frame.hpp"
 
 namespace icgt {
@@ -257,7 +258,7 @@ TEST(App, TimeSyncReplyEchoesTheHostTimeAndStampsReceiveAndTransmit) {
   ts.host_t_ns = 123'456'789'000ull;
   const uint64_t sent_at = rig.board.clock().now_us();
   const uint32_t seq = rig.host.send(ts);
-  rig.run_for(5'000);
+  rig.run_for(5'000);  // the reply is held at most TimeSyncResponder::kDitherUs
   const auto replies = rig.host.of(proto::MsgId::TIME_SYNC_REPLY);
   ASSERT_EQ(replies.size(), 1u);
   const auto r = replies[0].as<proto::TimeSyncReply>();
@@ -266,6 +267,51 @@ TEST(App, TimeSyncReplyEchoesTheHostTimeAndStampsReceiveAndTransmit) {
   EXPECT_GE(r.device_rx_t_us, sent_at);
   EXPECT_LE(r.device_rx_t_us - sent_at, 100u) << "received on the next loop iteration";
   EXPECT_GE(r.device_tx_t_us, r.device_rx_t_us);
+}
+
+TEST(App, TimeSyncRepliesAreHeldForARandomPartOfAFrameSoTheirPhaseOnTheHostsPollGridVaries) {
+  Rig rig;
+  rig.run_for(50'000);
+  std::vector<uint64_t> turnaround_us;
+  for (int i = 0; i < 60; ++i) {
+    proto::TimeSync ts;
+    ts.host_t_ns = static_cast<uint64_t>(i);
+    (void)rig.host.send(ts);
+    rig.run_for(3'000);
+  }
+  const auto replies = rig.host.of(proto::MsgId::TIME_SYNC_REPLY);
+  ASSERT_EQ(replies.size(), 60u);
+  int early = 0;
+  int late = 0;
+  for (const auto& f : replies) {
+    const auto r = f.as<proto::TimeSyncReply>();
+    const uint64_t held = r.device_tx_t_us - r.device_rx_t_us;
+    EXPECT_LE(held, core::TimeSyncResponder::kDitherUs + 100) << "held at most the dither and a loop";
+    early += held < 250 ? 1 : 0;
+    late += held > 750 ? 1 : 0;
+  }
+  // Uniform over 0..1000 us: about 15 of 60 in each quarter; none at all in one would mean a fixed phase.
+  EXPECT_GE(early, 5);
+  EXPECT_GE(late, 5);
+}
+
+TEST(TimeSyncResponder, FullSlotsAnswerAtOnceAndALostLinkForgetsTheHeldOnes) {
+  core::Outbox outbox;
+  core::TimeSyncResponder responder;
+  proto::TimeSyncReply reply;
+  for (std::size_t i = 0; i < core::TimeSyncResponder::kSlots + 2; ++i) {
+    reply.request_seq = static_cast<uint32_t>(i);
+    responder.hold(reply, 1'000, outbox);
+  }
+  EXPECT_EQ(responder.held(), core::TimeSyncResponder::kSlots);
+  EXPECT_EQ(outbox.queued(), 2u) << "the two that found no slot went out at once";
+  responder.release_due(1'000 + core::TimeSyncResponder::kDitherUs, outbox);
+  EXPECT_EQ(responder.held(), 0u);
+  EXPECT_EQ(outbox.queued(), core::TimeSyncResponder::kSlots + 2);
+  responder.hold(reply, 5'000, outbox);
+  responder.clear();
+  responder.release_due(UINT64_MAX, outbox);
+  EXPECT_EQ(outbox.queued(), core::TimeSyncResponder::kSlots + 2) << "a cleared reply is never sent";
 }
 
 TEST(App, PingIsAckedWithItsNonceAndNonceZeroAsksForHello) {

@@ -87,7 +87,6 @@ class AutopilotClockFilter:
             prior_drift_uncertainty_ppm=prior_drift_uncertainty_ppm,
             path_asymmetry_ns=path_asymmetry_ns,
             jump_margin_ns=jump_margin_ns,
-            frame_us=None,
         )
         self._fast = fast_interval_s
         self._slow = slow_interval_s

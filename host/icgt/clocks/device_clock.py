@@ -27,13 +27,12 @@ band (one unlucky point near the end of the window would tilt it) but from the e
 of equal time buckets, each side weighted by how sharp its floor is (``_bucket_slope``), always
 clipped to the slopes that violate no exchange.
 
-Frame-synchronous links. When requests also wait for the frame grid (as hil_sim's link does:
-both directions released at the next 1 ms boundary), the reply always leaves one frame after
-the request arrived, so measured from the device's transmit stamp it never gets near its floor
-and the symmetric midline would be off by about half a frame. The filter detects this from the
-arrival times themselves (mapped to host time they pile up at one phase of the frame) and then
-measures the reply from the receive stamp less one frame plus the arrival spread; the slope
-that makes the arrival phase sharpest is the drift (``ClockEstimate.frame_locked``).
+Frame-synchronous links. A USB host polls the device on its frame grid (1 ms full speed,
+125 us high speed) and requests reach the device at one phase of it, so a reply sent at once
+would always wait most of a frame for the next poll and never reach its path's floor (a bias
+of about half a frame). The firmware therefore holds each reply a random 0..1 ms before
+sending it (``firmware/lib/core/time_sync_responder.hpp``, SPEC.md): some replies then leave
+just before a poll and both envelopes reach their floors. Nothing here models the frames.
 
 Uncertainty (a worst-case bound, not a sigma)
 ----------------------------------------------
@@ -42,10 +41,9 @@ Every line that violates no exchange's constraint is a possible truth. The repor
 there whose slope is also within 4 standard errors of the estimated drift (a small LP over the
 same hulls), plus the 1 us stamp resolution, plus an allowance for the crystal's frequency wander
 (``wander_ppm``) for queries outside the window (extrapolation across an unplug grows linearly).
-It holds whatever the path asymmetry is, provided the clock is linear over the window (and,
-when frame-locked, that the frame model holds); so it includes the constant asymmetry of the two
-paths' floors that no two-way method can observe (about half the lowest round trip), and is
-typically several times the actual error.
+It holds whatever the path asymmetry is, provided the clock is linear over the window; so it
+includes the constant asymmetry of the two paths' floors that no two-way method can observe
+(about half the lowest round trip), and is typically several times the actual error.
 
 The window is trimmed by age and count (bounded memory for hours of flight), but old samples
 are only dropped once newer ones span half the window, so after a long gap the drift measured
@@ -130,7 +128,6 @@ class ClockEstimate:
     min_rtt_ns: int
     span_s: float
     resets: int
-    frame_locked: bool = False
 
     @property
     def offset_ns(self) -> float:
@@ -172,7 +169,6 @@ class _Fit:
     n: int
     min_rtt_ns: int
     t_host_ns: int
-    frame_locked: bool
 
 
 def _cross(o: tuple[float, float], a: tuple[float, float], b: tuple[float, float]) -> float:
@@ -305,7 +301,6 @@ class _TwoWayLine:
         prior_drift_uncertainty_ppm: float,
         path_asymmetry_ns: float,
         jump_margin_ns: int,
-        frame_us: float | None,
     ) -> None:
         if window_s <= 0 or max_samples < 2 or min_span_s < 0 or max_drift_ppm <= 0 or rtt_limit_ns <= 0:
             raise ValueError(
@@ -322,9 +317,6 @@ class _TwoWayLine:
         self._prior_unc = prior_drift_uncertainty_ppm * 1e-6
         self._asym = float(path_asymmetry_ns)
         self._jump_margin_ns = jump_margin_ns
-        self._frame_ns = None if frame_us is None else frame_us * 1000.0
-        self.frame_locked = False
-        self.arrival_width_ns = 0.0
         self._samples: deque[_Sample] = deque()
         self._fit: _Fit | None = None
         self._dirty = False
@@ -418,77 +410,19 @@ class _TwoWayLine:
 
     def fit(self) -> _Fit | None:
         if self._dirty:
-            self._fit = self._fit_window()
+            self._fit = self._compute_fit()
             while self._fit is not None and self._fit.s_lo > self._fit.s_hi and len(self._samples) > 1:
                 # No line fits the whole window: the frequency moved more than the delays allow. Drop
                 # the oldest quarter and refit (cheap; rare).
                 for _ in range(max(1, len(self._samples) // 4)):
                     if len(self._samples) > 1:
                         self._samples.popleft()
-                self._fit = self._fit_window()
+                self._fit = self._compute_fit()
             self._dirty = False
         return self._fit
 
-    def _fit_window(self) -> _Fit | None:
-        fit = self._compute_fit(None)
-        if fit is None or self._frame_ns is None or fit.s_lo > fit.s_hi:
-            return fit
-        if len(self._samples) < 16:
-            # Too few arrivals to judge the link; it is the same cable as before a reset, so keep its model.
-            if not self.frame_locked:
-                return fit
-            kept = self._compute_fit(self._frame_ns - self.arrival_width_ns)
-            return kept if kept is not None and kept.s_lo <= kept.s_hi else fit
-        concentration, width, slope = self._arrival_phase(fit)
-        min_raw_rtt = min(smp.host_rx_ns - smp.host_tx_ns for smp in self._samples)
-        # Hysteresis, so a few odd arrivals do not flip the model back and forth.
-        threshold = 0.5 if self.frame_locked else 0.8
-        self.frame_locked = concentration >= threshold and min_raw_rtt >= 0.5 * self._frame_ns
-        self.arrival_width_ns = width
-        if not self.frame_locked:
-            return fit
-        locked = self._compute_fit(self._frame_ns - width, slope)
-        return locked if locked is not None and locked.s_lo <= locked.s_hi else fit
-
-    def _arrival_phase(self, fit: _Fit) -> tuple[float, float, float]:
-        """Concentration (0..1), full width [ns] and sharpest slope of the requests' arrival phase in the frame.
-
-        On a link whose requests arrive on the host controller's frame grid (USB full speed as the
-        hil_sim models it: both directions wait for the next 1 ms frame), the arrivals, mapped to
-        host time, pile up at one phase of the frame. Then the reply cannot leave before the next
-        frame, so its delay measured from the device's transmit stamp never gets near its floor
-        (it is about a frame minus the device's turnaround) and the symmetric envelope would be off
-        by half a frame. Detected, the reply side is instead measured from the *receive* stamp less
-        one frame plus the arrival spread: that quantity does reach the path's floor. The phase
-        spread is invariant to the line's unknown offset, and the slope that makes it narrowest
-        (within the causally feasible ones) measures the drift far better than the envelope's few
-        extreme points do; a grid that drifted against the host clock would not have been detected.
-        """
-        assert self._frame_ns is not None
-        frame = self._frame_ns
-        xs: list[float] = []
-        phases: list[float] = []
-        for smp in self._samples:
-            x = (smp.rx - fit.ref_x) * 1000.0
-            xs.append(x)
-            phases.append(math.fmod(fit.a + (1.0 + fit.s) * x, frame) / frame * 2.0 * math.pi)
-        c = sum(math.cos(p) for p in phases) / len(phases)
-        sn = sum(math.sin(p) for p in phases) / len(phases)
-        concentration = math.hypot(c, sn)
-        centre = math.atan2(sn, c)
-        dev = [math.remainder(p - centre, 2.0 * math.pi) / (2.0 * math.pi) * frame for p in phases]
-
-        def width(s: float) -> float:  # convex in s: max minus min of linear functions
-            moved = [d + (s - fit.s) * x for d, x in zip(dev, xs, strict=True)]
-            return max(moved) - min(moved)
-
-        slope = _golden_max(lambda s: -width(s), fit.s_lo, fit.s_hi)
-        return concentration, width(slope), slope
-
-    def _compute_fit(self, reply_shift_ns: float | None, slope_hint: float | None = None) -> _Fit | None:
-        """Max-margin line over the window. ``reply_shift_ns`` None: replies measured from the transmit
-        stamp (causal); a number: from the receive stamp, host receive time less this shift.
-        ``slope_hint``: use this slope (clipped to the feasible ones) instead of the max-margin one."""
+    def _compute_fit(self) -> _Fit | None:
+        """The line midway between the two envelopes over the window, its feasible slopes and hulls."""
         if not self._samples:
             return None
         newest = self._samples[-1]
@@ -499,11 +433,8 @@ class _TwoWayLine:
         for smp in self._samples:
             xa = (smp.rx - ref_x) * 1000.0
             pts_a.append((xa, float(smp.host_tx_ns - ref_h) - xa))
-            if reply_shift_ns is None:
-                xb = (smp.tx - ref_x) * 1000.0
-                pts_b.append((xb, float(smp.host_rx_ns - ref_h) - xb))
-            else:
-                pts_b.append((xa, float(smp.host_rx_ns - ref_h) - reply_shift_ns - xa))
+            xb = (smp.tx - ref_x) * 1000.0
+            pts_b.append((xb, float(smp.host_rx_ns - ref_h) - xb))
             min_rtt = min(min_rtt, (smp.host_rx_ns - smp.host_tx_ns) - (smp.tx - smp.rx) * 1000.0)
         hull_a = _upper_hull(pts_a)
         hull_b = _lower_hull(pts_b)
@@ -531,7 +462,7 @@ class _TwoWayLine:
             lo, hi = -self._s_max, self._s_max  # the prior is wrong (temperature moved): let the data speak
             s_best = _golden_max(margin, lo, hi)
         if margin(s_best) < -slack:
-            return _Fit(ref_x, ref_h, 0.0, s_best, 1.0, -1.0, 1.0, -1.0, hull_a, hull_b, x_min, x_max, 0, 0, 0, False)
+            return _Fit(ref_x, ref_h, 0.0, s_best, 1.0, -1.0, 1.0, -1.0, hull_a, hull_b, x_min, x_max, 0, 0, 0)
 
         def feasible(s: float) -> bool:
             return margin(s) >= -slack
@@ -541,7 +472,7 @@ class _TwoWayLine:
         b_lo, b_hi = s_lo, s_hi
         if span_ok:
             s_bucket, sigma = _bucket_slope(pts_a, pts_b, 0.5 * (lower(s_best) + upper(s_best)), s_best)
-            s = min(max(s_bucket if slope_hint is None else slope_hint, s_lo), s_hi)
+            s = min(max(s_bucket, s_lo), s_hi)
             # The bound considers the lines whose slope is within 4 standard errors of ours (and feasible):
             # every feasible slope would be a pure worst case, several times wider than the slope's real error.
             b_lo, b_hi = max(s_lo, s - 4.0 * sigma), min(s_hi, s + 4.0 * sigma)
@@ -565,7 +496,6 @@ class _TwoWayLine:
             len(self._samples),
             int(min_rtt),
             newest.host_rx_ns,
-            reply_shift_ns is not None,
         )
 
     # -- queries ----------------------------------------------------------------------------
@@ -629,7 +559,6 @@ class _TwoWayLine:
             min_rtt_ns=fit.min_rtt_ns,
             span_s=(fit.x_max - fit.x_min) * 1e-9,
             resets=self.resets,
-            frame_locked=fit.frame_locked,
         )
 
     def counters(self) -> dict[str, int]:
@@ -680,15 +609,11 @@ class DeviceClockFilter:
         settle_min_span_s: float = 4.0,
         dither: float = 0.1,
         seed: int = 0,
-        frame_us: float | None = 1000.0,
     ) -> None:
         """``path_asymmetry_ns``: known (request floor - reply floor) one-way delay difference, if calibrated.
 
         ``dither``: the schedule hint varies by +-this fraction, so requests do not stay phase-locked
         to the 1 ms USB frames (a fixed phase would be a fixed, unobservable bias).
-
-        ``frame_us``: the link's frame period, for detecting requests that arrive on the frame grid
-        (see ``ClockEstimate.frame_locked``); None never assumes it.
         """
         self._line = _TwoWayLine(
             resolution_us=1.0,
@@ -702,7 +627,6 @@ class DeviceClockFilter:
             prior_drift_uncertainty_ppm=prior_drift_uncertainty_ppm,
             path_asymmetry_ns=path_asymmetry_ns,
             jump_margin_ns=jump_margin_ns,
-            frame_us=frame_us,
         )
         self._fast = fast_interval_s
         self._slow = slow_interval_s

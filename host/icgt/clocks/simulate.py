@@ -9,8 +9,9 @@ firmware's counter and the autopilots' ``hrt_absolute_time`` / ``micros64`` are.
 
 USB full speed (the device link): a request waits for the next 1 ms frame of the host's
 controller (the frame grid is fixed in host time), then reaches the device after a small
-uniform jitter; the reply leaves with the host's next IN poll (the next frame boundary) and
-reaches the reading thread after a floor, a uniform jitter and an exponential scheduler tail.
+uniform jitter; the device holds its reply a random 0..1 ms (as the firmware does), then it
+leaves with the host's next IN poll (the next frame boundary) and reaches the reading thread
+after a floor, a uniform jitter and an exponential scheduler tail.
 The two directions have different floors (an asymmetry no two-way method can observe: it
 appears as a bias of half the difference) and different jitter shapes. Occasional spikes of
 milliseconds to tens of milliseconds hit one direction.
@@ -81,8 +82,8 @@ class UsbLinkModel:
     in_floor_us: float = 45.0  # reply: controller interrupt -> tty layer -> reading thread
     in_jitter_us: float = 50.0
     in_tail_us: float = 30.0  # exponential mean: the reading thread's wake-up
-    turnaround_min_us: float = 5.0  # device: request received -> reply framed
-    turnaround_max_us: float = 400.0
+    turnaround_min_us: float = 5.0  # device: request received -> reply framed, if sent at once
+    reply_hold_max_us: float = 1000.0  # the firmware holds each reply uniform 0..this (TimeSyncResponder)
     spike_probability: float = 0.02
     spike_min_us: float = 2_000.0
     spike_max_us: float = 40_000.0
@@ -184,7 +185,7 @@ def simulate_exchanges(
         sent = _next_boundary_ns(t, phase_ns, frame_ns) if link.out_on_frames else t
         arrive = sent + float(rng.uniform(0.0, link.out_jitter_us)) * 1000.0
         rx_true = truth.remote_us(arrive)
-        tx_true = rx_true + float(rng.uniform(link.turnaround_min_us, link.turnaround_max_us))
+        tx_true = rx_true + link.turnaround_min_us + float(rng.uniform(0.0, link.reply_hold_max_us))
         leave = _next_boundary_ns(truth.host_ns(tx_true), phase_ns, frame_ns)
         host_rx = (
             leave

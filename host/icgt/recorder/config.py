@@ -5,7 +5,6 @@ Every key names its unit. Example (all keys optional; these are the defaults)::
     [device]
     url = "/dev/ttyACM0"
     set_rtc = true                 # set the device RTC from the host's UTC at start
-    usb_frame_us = 1000            # USB frame: 1000 full speed (Teensy 3.6), 125 high speed (Teensy 4.1)
 
     [mavlink]
     url = "udpin:0.0.0.0:14550"
@@ -63,9 +62,6 @@ class ConfigError(IcgtError):
 class DeviceSection:
     url: str = "/dev/ttyACM0"
     set_rtc: bool = True
-    # The USB frame the link delivers on: 1000 us full speed (Teensy 3.6), 125 us high speed
-    # (Teensy 4.1). The clock filter uses it to recognise replies that wait for the next frame.
-    usb_frame_us: int = 1000
 
 
 @dataclass(frozen=True)

@@ -104,7 +104,7 @@ class Recorder:
         clock_lock = threading.RLock()
         self.device_clock: DeviceClockFilter = cast(
             DeviceClockFilter,
-            Synchronized(DeviceClockFilter(slow_interval_s=0.1, frame_us=config.device.usb_frame_us), clock_lock),
+            Synchronized(DeviceClockFilter(slow_interval_s=0.1), clock_lock),
         )
         autopilot = AutopilotClockFilter()
         self.autopilot_clock: AutopilotClockFilter = cast(AutopilotClockFilter, Synchronized(autopilot, clock_lock))
@@ -666,7 +666,6 @@ _ESTIMATE_SCHEMA = {
         "min_rtt_ns": _INT,
         "span_s": _NUM,
         "resets": _INT,
-        "frame_locked": {"type": "boolean"},
     },
 }
 _EXCHANGE_SCHEMA = {

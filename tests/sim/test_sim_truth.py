@@ -129,7 +129,7 @@ def test_exposure_truth_maps_mid_exposure_to_every_clock(tmp_path: Path) -> None
     traj = Trajectory(sc)
     frame = LocalFrame(37.8813, 127.7298, 76.0 + 24.9)
     for r, tau in zip(records, [5.0, 10.0, 15.0], strict=True):
-        mid_tau = tau + 500e-6 / (1 - 35e-6)  # 0.5 ms of device clock after the start
+        mid_tau = tau + 500e-6 / (1 + 50e-6)  # 0.5 ms of device clock (50 ppm fast) after the start
         assert r.mid_tau_s == pytest.approx(mid_tau, abs=1e-9)
         assert r.mid_device_us == r.start_device_us + 500
         assert r.mid_host_monotonic_ns == pytest.approx(T0_NS + mid_tau * 1e9, abs=1)

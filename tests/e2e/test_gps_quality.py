@@ -49,3 +49,20 @@ def test_local_position_geotags_stay_accurate(flight: Flight) -> None:
     result = evaluate(flight.scenario, read_frames(flight.mcap), read_truth(flight.truth_exposures))
     assert result["exposures_missing_from_log"] == 0
     assert result["geotag_error_unflagged_cm"]["p95"] < 30.0
+
+
+def test_with_pps_mid_exposure_utc_comes_from_the_edges_to_microseconds(flight: Flight) -> None:
+    truth = {int(t["start_device_us"]): t for t in read_truth(flight.truth_exposures)}
+    sources: dict[str, int] = {}
+    pps_errors_us: list[float] = []
+    for f in read_frames(flight.mcap):
+        t = truth.get(int(f["start_device_us"]))
+        if t is None or f.get("mid_utc_us") is None:
+            continue
+        sources[f["time_source"]] = sources.get(f["time_source"], 0) + 1
+        if f["time_source"] == "pps":
+            pps_errors_us.append(abs(int(f["mid_utc_us"]) - int(t["mid_utc_us"])))
+            assert f["mid_utc_uncertainty_us"] <= 10
+    # Every frame once the edges are locked (a few seconds in); the rest say where their UTC came from.
+    assert len(pps_errors_us) >= 0.7 * sum(sources.values()), sources
+    assert max(pps_errors_us) <= 5.0, sorted(pps_errors_us)[-5:]

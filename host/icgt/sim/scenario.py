@@ -236,6 +236,8 @@ class Sensors:
     range_rate_hz: float = 100.0
     lidar_model: Literal["v3", "v3hp"] = "v3"
     range_noise_cm: float = 2.5
+    pps: bool = False
+    """The GPS receiver's PPS wired to the device: an edge at every whole UTC second."""
 
     @property
     def lidar_max_range_m(self) -> float:
@@ -695,6 +697,7 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<memory>") -> Scenari
         range_rate_hz=se.number("range_rate_hz", 100.0, positive=True, max_value=1000.0),
         lidar_model=se.string("lidar_model", "v3", choices=tuple(LIDAR_MAX_RANGE_M)),  # type: ignore[arg-type]
         range_noise_cm=se.number("range_noise_cm", 2.5, min_value=0.0),
+        pps=se.boolean("pps", False),
     )
     se.finish()
 

@@ -144,6 +144,8 @@ class SimSession:
             "--events-out", str(self.files.device_events),
             "--control", str(self._control_path),
         ]  # fmt: skip
+        if sc.sensors.pps:
+            cmd.append("--pps")
         if sc.link.usb_latency_us:
             cmd += ["--usb-frame-us", str(sc.link.usb_latency_us)]
         if sc.link.usb_jitter_us:

@@ -146,9 +146,12 @@ std::string exposure_json(const icgt::sim::TrueExposure& e) {
 // sensors need stepping). A plain sleep of a loop period would add up to a period of latency
 // to the link in each direction, a path delay and asymmetry a real USB link does not have.
 void wait_for_host_or_due_bytes(const icgt::sim::ImpairedStream& link, const icgt::sim::HostPort& port) {
-  constexpr uint64_t kLoopPeriodNs = 50'000;
+  constexpr uint64_t kLoopPeriodNs = 100'000;
   const uint64_t now = monotonic_ns();
-  const uint64_t deadline = std::min(now + kLoopPeriodNs, link.next_release_ns());
+  const uint64_t due = link.next_release_ns();
+  // Bytes already due are still queued only when the host's buffer is full (it is not reading):
+  // waiting a period then instead of spinning on them.
+  const uint64_t deadline = due > now ? std::min(now + kLoopPeriodNs, due) : now + kLoopPeriodNs;
   const uint64_t wait = deadline > now ? deadline - now : 0;
   const timespec ts{static_cast<time_t>(wait / 1'000'000'000u), static_cast<long>(wait % 1'000'000'000u)};
   const int fd = link.connected() ? port.readable_fd() : -1;  // a hung-up pty polls readable at once

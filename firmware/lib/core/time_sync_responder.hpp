@@ -1,4 +1,4 @@
-// Holds each TIME_SYNC reply for a random 0..kDitherUs before queueing it (SPEC.md §6).
+// Holds each TIME_SYNC reply for a random 0..kDitherUs before queueing it (SPEC.md §8).
 //
 // Why: a USB host polls the device on its frame grid (1 ms full speed, 125 us high speed),
 // and a request reaches the device at one phase of that grid. A reply sent at once always

@@ -272,7 +272,6 @@ TEST(App, TimeSyncReplyEchoesTheHostTimeAndStampsReceiveAndTransmit) {
 TEST(App, TimeSyncRepliesAreHeldForARandomPartOfAFrameSoTheirPhaseOnTheHostsPollGridVaries) {
   Rig rig;
   rig.run_for(50'000);
-  std::vector<uint64_t> turnaround_us;
   for (int i = 0; i < 60; ++i) {
     proto::TimeSync ts;
     ts.host_t_ns = static_cast<uint64_t>(i);

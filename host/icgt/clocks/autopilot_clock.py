@@ -28,7 +28,7 @@ from collections import deque
 from dataclasses import asdict, dataclass
 from enum import Enum
 
-from icgt.clocks.device_clock import ClockEstimate, ClockNotSyncedError, ExchangeStatus, ResetReason, _TwoWayLine
+from icgt.clocks.device_clock import ClockNotSyncedError, ExchangeStatus, _TwoWayClock, _TwoWayLine
 
 __all__ = [
     "AutopilotClockFilter",
@@ -48,7 +48,7 @@ def gps_to_utc_us(week: int, time_of_week_ms: float, leap_seconds: int = GPS_UTC
     return (GPS_EPOCH_UNIX_S + week * 604_800 - leap_seconds) * 1e6 + time_of_week_ms * 1e3
 
 
-class AutopilotClockFilter:
+class AutopilotClockFilter(_TwoWayClock):
     """Autopilot boot clock [us] -> host monotonic clock [ns] from MAVLink TIMESYNC round trips.
 
     Feed only replies to this host's own requests (``ts1`` equal to a value it sent, ``tc1 != 0``).
@@ -101,10 +101,6 @@ class AutopilotClockFilter:
         # tc1 is a whole microsecond: floor it so the engine's half-step centring is right.
         return self._line.add(ts1_ns, math.floor(remote_us), math.floor(remote_us), host_rx_ns)
 
-    def reset(self) -> None:
-        """Forget the window (e.g. the autopilot's HEARTBEAT says it rebooted)."""
-        self._line.reset(ResetReason.CALLER)
-
     @property
     def settled(self) -> bool:
         return self._line.samples_since_reset >= self._settle_n and len(self._line) > 0
@@ -113,10 +109,6 @@ class AutopilotClockFilter:
     def synced(self) -> bool:
         """At least one reply is in the window (the mappings can be asked for)."""
         return len(self._line) > 0
-
-    def estimate(self) -> ClockEstimate:
-        """Current line (``ref_clock_us`` on the autopilot boot clock) and its worst-case bound."""
-        return self._line.estimate(self.settled)
 
     def autopilot_to_host_ns(self, boot_us: float) -> int:
         """Host monotonic time [ns] of an autopilot boot time [us]. Raises ClockNotSyncedError before any reply."""
@@ -133,18 +125,6 @@ class AutopilotClockFilter:
     def next_exchange_interval_s(self) -> float:
         """Seconds until the next TIMESYNC request: fast until settled, then slow."""
         return self._slow if self.settled else self._fast
-
-    @property
-    def resets(self) -> int:
-        return self._line.resets
-
-    @property
-    def last_reset_reason(self) -> ResetReason:
-        return self._line.last_reset_reason
-
-    @property
-    def counters(self) -> dict[str, int]:
-        return self._line.counters()
 
 
 class UtcSource(Enum):

@@ -579,14 +579,48 @@ class _TwoWayLine:
         return len(self._samples)
 
 
-class DeviceClockFilter:
+class _TwoWayClock:
+    """What both two-way clock filters expose from their line: the estimate, a reset and the counts.
+
+    Subclasses set ``self._line`` and say when they are ``settled`` (when to drop to the slow rate).
+    """
+
+    _line: _TwoWayLine
+
+    @property
+    def settled(self) -> bool:
+        raise NotImplementedError
+
+    def reset(self) -> None:
+        """Forget the window (the remote rebooted); the last drift is kept as a prior (same crystal)."""
+        self._line.reset(ResetReason.CALLER)
+
+    def estimate(self) -> ClockEstimate:
+        """The current line and its worst-case bound at the newest exchange (``valid`` False before any)."""
+        return self._line.estimate(self.settled)
+
+    @property
+    def resets(self) -> int:
+        return self._line.resets
+
+    @property
+    def last_reset_reason(self) -> ResetReason:
+        return self._line.last_reset_reason
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """Accepted / rejected / reset counts since construction, and the samples in the window."""
+        return self._line.counters()
+
+
+class DeviceClockFilter(_TwoWayClock):
     """Device clock [us] -> host monotonic clock [ns] from TIME_SYNC / TIME_SYNC_REPLY exchanges.
 
     Feed it every reply with ``add_exchange``; ask ``next_exchange_interval_s`` when to send the
     next request. Pure computation: the caller stamps ``host_tx_ns`` just before writing the
     request and ``host_rx_ns`` as soon as the reply is read, both with ``time.monotonic_ns()``.
 
-    Defaults suit USB full speed: window 180 s / 512 exchanges (a line over 3 minutes follows a
+    Defaults suit USB full speed: window 120 s / 512 exchanges (a line over 2 minutes follows a
     crystal warming up by a few ppm without bending), drift up to +-1000 ppm, RTTs above 10 ms
     not stored (spikes), 0.5 ppm frequency wander allowed for when extrapolating.
     """
@@ -639,14 +673,6 @@ class DeviceClockFilter:
         """One exchange: host send [ns, host], device receive and transmit [us, device], host receive [ns, host]."""
         return self._line.add(host_tx_ns, device_rx_us, device_tx_us, host_rx_ns)
 
-    def reset(self) -> None:
-        """Forget the window (e.g. HELLO says the device rebooted); the last drift is kept as a prior."""
-        self._line.reset(ResetReason.CALLER)
-
-    def estimate(self) -> ClockEstimate:
-        """The current line and its worst-case bound at the newest exchange (``valid`` False before any)."""
-        return self._line.estimate(self.settled)
-
     @property
     def settled(self) -> bool:
         """Enough exchanges over enough time since the last reset or gap to drop to the slow rate."""
@@ -674,19 +700,6 @@ class DeviceClockFilter:
         """Seconds until the next TIME_SYNC: fast until settled (and after a reset or a gap), then slow; dithered."""
         base = self._slow if self.settled else self._fast
         return base * (1.0 + self._dither * (2.0 * self._rng.random() - 1.0))
-
-    @property
-    def resets(self) -> int:
-        return self._line.resets
-
-    @property
-    def last_reset_reason(self) -> ResetReason:
-        return self._line.last_reset_reason
-
-    @property
-    def counters(self) -> dict[str, int]:
-        """Accepted / rejected / reset counts since construction (for STATUS-like logging)."""
-        return self._line.counters()
 
 
 # ---------------------------------------------------------------------------------------------

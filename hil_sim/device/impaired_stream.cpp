@@ -3,15 +3,12 @@
 #include <time.h>
 
 namespace icgt::sim {
-namespace {
 
 uint64_t monotonic_now_ns() {
   timespec ts{};
   ::clock_gettime(CLOCK_MONOTONIC, &ts);
   return static_cast<uint64_t>(ts.tv_sec) * 1'000'000'000u + static_cast<uint64_t>(ts.tv_nsec);
 }
-
-}  // namespace
 
 ImpairedStream::ImpairedStream(HostPort& port, const ClockMap& map, uint64_t seed)
     : port_(port), map_(map), rng_(seed) {}

@@ -18,6 +18,9 @@
 
 namespace icgt::sim {
 
+// The host's CLOCK_MONOTONIC [ns]: the real-time axis the simulator paces and stamps against.
+[[nodiscard]] uint64_t monotonic_now_ns();
+
 // Scenario time, host monotonic time and the device clock (hil_sim/README.md, "Time axes").
 struct ClockMap {
   uint64_t t0_monotonic_ns = 0;

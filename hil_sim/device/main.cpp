@@ -24,12 +24,6 @@ namespace {
 volatile std::sig_atomic_t g_stop = 0;
 void on_signal(int) { g_stop = 1; }
 
-uint64_t monotonic_ns() {
-  timespec ts{};
-  ::clock_gettime(CLOCK_MONOTONIC, &ts);
-  return static_cast<uint64_t>(ts.tv_sec) * 1'000'000'000u + static_cast<uint64_t>(ts.tv_nsec);
-}
-
 struct Options {
   std::string link = "pty";
   std::string truth;
@@ -147,7 +141,7 @@ std::string exposure_json(const icgt::sim::TrueExposure& e) {
 // to the link in each direction, a path delay and asymmetry a real USB link does not have.
 void wait_for_host_or_due_bytes(const icgt::sim::ImpairedStream& link, const icgt::sim::HostPort& port) {
   constexpr uint64_t kLoopPeriodNs = 100'000;
-  const uint64_t now = monotonic_ns();
+  const uint64_t now = icgt::sim::monotonic_now_ns();
   const uint64_t due = link.next_release_ns();
   // Bytes already due are still queued only when the host's buffer is full (it is not reading):
   // waiting a period then instead of spinning on them.
@@ -201,7 +195,7 @@ int main(int argc, char** argv) {
   }
 
   ClockMap map;
-  map.t0_monotonic_ns = opt.t0_monotonic_ns != 0 ? opt.t0_monotonic_ns : monotonic_ns();
+  map.t0_monotonic_ns = opt.t0_monotonic_ns != 0 ? opt.t0_monotonic_ns : icgt::sim::monotonic_now_ns();
   map.device_offset_us = opt.device_offset_us;
   map.device_drift_ppm = opt.device_drift_ppm;
 
@@ -248,7 +242,7 @@ int main(int argc, char** argv) {
   std::printf("link: %s\n", port->url().c_str());
   std::fflush(stdout);
 
-  const auto tau_now = [&] { return map.tau_s_at_monotonic(monotonic_ns()); };
+  const auto tau_now = [&] { return map.tau_s_at_monotonic(icgt::sim::monotonic_now_ns()); };
   board.clock().set_us(map.device_us_at_tau(tau_now()));
   board.begin();
 
@@ -271,7 +265,7 @@ int main(int argc, char** argv) {
       double seconds = 0.0;
       if (!(in >> seconds) || seconds <= 0.0) return "error: disconnect SECONDS";
       link.unplug();
-      replug_at_ns = monotonic_ns() + static_cast<uint64_t>(seconds * 1e9);
+      replug_at_ns = icgt::sim::monotonic_now_ns() + static_cast<uint64_t>(seconds * 1e9);
       events.line(R"({"event":"link","state":"down","tau_s":)" + std::to_string(tau_now()) + "}");
       return "ok";
     }
@@ -296,7 +290,7 @@ int main(int argc, char** argv) {
   };
 
   while (g_stop == 0) {
-    const uint64_t now_ns = monotonic_ns();
+    const uint64_t now_ns = icgt::sim::monotonic_now_ns();
     const double tau = map.tau_s_at_monotonic(now_ns);
     const TruthRow r = truth.at(tau);
     Bno055Truth t;
@@ -318,13 +312,13 @@ int main(int argc, char** argv) {
     // Run the board up to the time *after* taking in the host's bytes: with the loop-start time
     // the bytes would wait a whole loop iteration in virtual time and the reply would leave that
     // much later in real time than its device stamp says (a path asymmetry the host cannot see).
-    board.run_until(map.device_us_at_tau(map.tau_s_at_monotonic(monotonic_ns())));
-    link.pump(monotonic_ns());
+    board.run_until(map.device_us_at_tau(map.tau_s_at_monotonic(icgt::sim::monotonic_now_ns())));
+    link.pump(icgt::sim::monotonic_now_ns());
 
     const auto& ex = board.camera().exposures();
     for (; exposures_emitted < ex.size(); ++exposures_emitted) events.line(exposure_json(ex[exposures_emitted]));
     control.poll(handle);
-    if (replug_at_ns != 0 && monotonic_ns() >= replug_at_ns) {
+    if (replug_at_ns != 0 && icgt::sim::monotonic_now_ns() >= replug_at_ns) {
       link.replug();
       replug_at_ns = 0;
       events.line(R"({"event":"link","state":"up","tau_s":)" + std::to_string(tau_now()) + "}");

@@ -10,6 +10,7 @@ import pytest
 from icgt.demo import Flight, fly
 from icgt.sim.evaluate import evaluate, read_frames, read_truth
 from icgt.sim.scenario import load_scenario
+from replay_check import assert_replay_reproduces_every_frame
 
 SCENARIO = Path(__file__).with_name("gps_denied.toml")
 
@@ -66,3 +67,7 @@ def test_with_pps_mid_exposure_utc_comes_from_the_edges_to_microseconds(flight: 
     # Every frame once the edges are locked (a few seconds in); the rest say where their UTC came from.
     assert len(pps_errors_us) >= 0.7 * sum(sources.values()), sources
     assert max(pps_errors_us) <= 5.0, sorted(pps_errors_us)[-5:]
+
+
+def test_recomputing_the_flight_reproduces_every_frame_exactly(flight: Flight) -> None:
+    assert_replay_reproduces_every_frame(flight.mcap)

@@ -22,6 +22,7 @@ from pymavlink import mavutil
 from icgt.demo import Flight, fly
 from icgt.sim.evaluate import evaluate, read_frames, read_truth
 from icgt.sim.scenario import load_scenario
+from replay_check import assert_replay_reproduces_every_frame
 
 SCENARIO = Path(__file__).with_name("short_flight.toml")
 
@@ -144,3 +145,7 @@ def test_every_topic_has_a_schema_and_every_message_decodes(flight: Flight) -> N
 def test_the_recorder_logged_no_error(flight: Flight) -> None:
     log = flight.recorder_log.read_text()
     assert "Traceback" not in log and " ERROR " not in log and " CRITICAL " not in log
+
+
+def test_recomputing_the_flight_reproduces_every_frame_exactly(flight: Flight) -> None:
+    assert_replay_reproduces_every_frame(flight.mcap)

@@ -1,5 +1,6 @@
-"""MavlinkLink against pymavlink peers over 127.0.0.1: liveness events, stream-rate requests, TIMESYNC,
-robustness to garbage and to a TCP peer going away, subscriptions, and a clean stop."""
+"""MavlinkLink against pymavlink peers over 127.0.0.1: liveness events, stream-rate requests, TIMESYNC
+requests (paired by the synchroniser, as in the recorder), robustness to garbage and to a TCP peer going
+away, subscriptions, and a clean stop."""
 
 from __future__ import annotations
 
@@ -20,25 +21,39 @@ from icgt.mavlink.link import (
     LinkState,
     MavlinkLink,
     Received,
-    TimesyncSample,
 )
+from icgt.sync import SyncConfig, Synchroniser, TimesyncReply
 
 RATE_IDS = [r.message_id for r in DEFAULT_STREAM_RATES]
 
 
 class Recorder:
-    def __init__(self):
+    """Collects the link's events and feeds a synchroniser as the recorder does (requests, then messages)."""
+
+    def __init__(self, timesync_timeout_s: float = 1.0):
         self.events: list[LinkEvent] = []
-        self.timesync: list[TimesyncSample] = []
+        self.timesync: list[TimesyncReply] = []
         self.lock = threading.Lock()
+        self.sync = Synchroniser(SyncConfig(timesync_timeout_s=timesync_timeout_s))
 
     def on_event(self, e: LinkEvent) -> None:
         with self.lock:
             self.events.append(e)
 
-    def on_timesync(self, s: TimesyncSample) -> None:
+    def on_timesync_sent(self, tx_ns: int) -> None:
         with self.lock:
-            self.timesync.append(s)
+            self.sync.on_timesync_request(tx_ns)
+
+    def on_message(self, rec: Received) -> None:
+        with self.lock:
+            reply = self.sync.on_mavlink(rec.msg, rec.rx_ns)
+            if reply is not None:
+                self.timesync.append(reply)
+
+    def unanswered(self) -> int:
+        with self.lock:
+            self.sync.poll(time.monotonic_ns())
+            return self.sync.timesync.unanswered
 
     def kinds(self) -> list[LinkEventKind]:
         with self.lock:
@@ -54,7 +69,8 @@ def make_link(rec: Recorder | None = None, **overrides) -> tuple[MavlinkLink, in
     cfg = dict(url=f"udpin:127.0.0.1:{port}", link_timeout_s=0.3, rate_ack_timeout_s=0.1, timesync_fast_hz=20.0)
     cfg.update(overrides)
     rec = rec or Recorder()
-    link = MavlinkLink(LinkConfig(**cfg), on_event=rec.on_event, on_timesync=rec.on_timesync)
+    link = MavlinkLink(LinkConfig(**cfg), on_event=rec.on_event, on_timesync_sent=rec.on_timesync_sent)
+    link.subscribe(rec.on_message)
     return link, port
 
 
@@ -170,21 +186,23 @@ def test_timesync_client_pairs_replies(recorder):
         n = len(ap.timesync_requests)
         time.sleep(0.6)
         assert len(ap.timesync_requests) - n <= 1
-        assert link.stats().timesync_answered == len(recorder.timesync)
+        assert recorder.sync.timesync.answered == len(recorder.timesync)
+        assert link.stats().timesync_sent >= len(recorder.timesync)
     finally:
         other.close()
         ap.close()
         link.stop()
 
 
-def test_unanswered_timesync_is_forgotten(recorder):
-    link, port = make_link(recorder, request_rates=False, timesync_timeout_s=0.1)
+def test_unanswered_timesync_is_forgotten():
+    recorder = Recorder(timesync_timeout_s=0.1)
+    link, port = make_link(recorder, request_rates=False)
     ap = AutopilotPeer(port)
     ap.answer_timesync = False
     link.start()
     try:
         ap.heartbeat()
-        assert wait_until(lambda: link.stats().timesync_unanswered >= 2)
+        assert wait_until(lambda: recorder.unanswered() >= 2)
         assert recorder.timesync == []
     finally:
         ap.close()

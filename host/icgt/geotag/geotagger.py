@@ -185,7 +185,7 @@ class Geotagger:
             waited_ms = (now_host_ns - mid_host_ns) / 1e6
             if not (flush or waited_ms >= self._cfg.max_wait_ms or self._later_samples_arrived(mid_host_ns)):
                 return emitted
-            record = self._build(p, mid_host_ns)
+            record = self._build(p, mid_host_ns, now_host_ns)
             with self._lock:
                 self._pending.popleft()
             self._emit(record)
@@ -217,7 +217,7 @@ class Geotagger:
         # ATTITUDE_QUATERNION carries the estimator's quaternion without the Euler round trip.
         return self._tm.attitude_quaternion if len(self._tm.attitude_quaternion) else self._tm.attitude
 
-    def _build(self, p: _Pending, mid_host_ns: int) -> FrameRecord:
+    def _build(self, p: _Pending, mid_host_ns: int, now_host_ns: int) -> FrameRecord:
         e = p.exposure
         flags = list(p.flags)
         try:
@@ -337,6 +337,7 @@ class Geotagger:
             scale_mm_per_px=scale,
             incidence_deg=incidence,
             blur_px=blur,
+            emitted_host_ns=now_host_ns,
         )
 
     def _position(

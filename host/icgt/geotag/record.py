@@ -110,3 +110,7 @@ class FrameRecord:
     scale_mm_per_px: Annotated[float | None, Doc("ground sample distance at the image centre", unit="mm/px")] = None
     incidence_deg: Annotated[float | None, Doc("angle between optical axis and surface normal", unit="deg")] = None
     blur_px: Annotated[float | None, Doc("predicted motion blur (rotation and translation)", unit="px")] = None
+    # --- provenance
+    emitted_host_ns: Annotated[
+        int | None, Doc("host CLOCK_MONOTONIC when the synchroniser emitted the frame (its poll)", unit="ns")
+    ] = None

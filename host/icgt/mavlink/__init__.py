@@ -33,7 +33,6 @@ from icgt.mavlink.link import (
     RateRequestResult,
     Received,
     StreamRate,
-    TimesyncSample,
 )
 from icgt.mavlink.telemetry import (
     AttitudeSample,
@@ -77,5 +76,4 @@ __all__ = [
     "SystemTimeSample",
     "TelemetryBuffer",
     "TelemetryStore",
-    "TimesyncSample",
 ]

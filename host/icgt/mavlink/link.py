@@ -10,9 +10,11 @@
   block (take a lock briefly at most, or hand the message to your own queue). `subscribe_queue()` gives a
   bounded `queue.Queue` instead for consumers that want to block on their own thread.
 * the **service** thread tracks the autopilot's liveness (seen / lost after ``link_timeout_s`` without any
-  message / back, each a `LinkEvent` carrying the outage length), runs the TIMESYNC client and requests
-  the telemetry stream rates with MAV_CMD_SET_MESSAGE_INTERVAL (one command at a time, retried until a
-  COMMAND_ACK, bounded) at start, after every outage and after an autopilot reboot.
+  message / back, each a `LinkEvent` carrying the outage length), sends TIMESYNC requests (fast after the
+  autopilot appears, then slow; each send time goes to ``on_timesync_sent``: pairing the replies is the
+  synchroniser's job, `icgt.sync`, so that the live recorder and the offline recompute pair them by one
+  rule) and requests the telemetry stream rates with MAV_CMD_SET_MESSAGE_INTERVAL (one command at a time,
+  retried until a COMMAND_ACK, bounded) at start, after every outage and after an autopilot reboot.
 
 If a stream transport (serial, TCP) fails, the reader closes it and reopens it every ``reopen_delay_s``
 until it works again or the link is stopped. `send()` may be called from any thread.
@@ -31,12 +33,13 @@ import socket
 import threading
 import time
 from collections.abc import Callable, Iterable
-from typing import Any, NamedTuple
+from typing import Any
 
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from icgt.errors import IcgtError
+from icgt.mavlink.autopilot_rules import BOOT_CLOCK_TYPES, REBOOT_BACKSTEP_MS, is_autopilot_heartbeat
 
 __all__ = [
     "DEFAULT_STREAM_RATES",
@@ -51,7 +54,6 @@ __all__ = [
     "Received",
     "StreamRate",
     "Subscription",
-    "TimesyncSample",
     "mavlink2",
 ]
 
@@ -59,10 +61,6 @@ log = logging.getLogger(__name__)
 
 MAV_COMP_ID_CAMERA = 100
 _PROTOCOL_MARKER_V1 = 0xFE
-_REBOOT_BACKSTEP_MS = 2000  # a boot stamp going back more than this means the autopilot rebooted
-_BOOT_CLOCK_TYPES = frozenset(
-    {"SYSTEM_TIME", "ATTITUDE", "ATTITUDE_QUATERNION", "GLOBAL_POSITION_INT", "LOCAL_POSITION_NED"}
-)
 
 
 class LinkError(IcgtError):
@@ -130,18 +128,6 @@ class Received:
         return 1 if buf and buf[0] == _PROTOCOL_MARKER_V1 else 2
 
 
-class TimesyncSample(NamedTuple):
-    """One TIMESYNC round trip: host send time, the autopilot's clock (ns) when it answered, host receipt."""
-
-    host_tx_ns: int
-    autopilot_tc1_ns: int
-    host_rx_ns: int
-
-    @property
-    def rtt_ns(self) -> int:
-        return self.host_rx_ns - self.host_tx_ns
-
-
 @dataclasses.dataclass(frozen=True, slots=True)
 class StreamRate:
     """A telemetry stream to ask the autopilot for. ``rate_hz <= 0`` asks it to stop the stream."""
@@ -191,7 +177,6 @@ class LinkConfig:
     timesync_fast_hz: float = 5.0  # after the autopilot appears (again) ...
     timesync_fast_count: int = 20  # ... for this many requests, then:
     timesync_slow_hz: float = 1.0
-    timesync_timeout_s: float = 1.0  # an unanswered request is forgotten after this
 
     @property
     def effective_autopilot_system(self) -> int:
@@ -227,8 +212,6 @@ class LinkStats:
     queue_drops: int
     self_echoes: int
     timesync_sent: int
-    timesync_answered: int
-    timesync_unanswered: int
     outages: int
     transport_errors: int
 
@@ -294,7 +277,8 @@ def _open(config: LinkConfig) -> Any:
 class MavlinkLink:
     """A MAVLink connection with a stamping reader thread, autopilot liveness, TIMESYNC and stream rates.
 
-    ``on_event`` and ``on_timesync`` are called on the link's threads: keep them short and non-blocking.
+    ``on_event`` and ``on_timesync_sent`` (the ts1 [ns, host clock] of each TIMESYNC request just sent) are
+    called on the link's threads: keep them short and non-blocking.
     ``clock`` is the host clock (time.monotonic_ns); tests may pass another.
     """
 
@@ -303,12 +287,12 @@ class MavlinkLink:
         config: LinkConfig,
         *,
         on_event: Callable[[LinkEvent], None] | None = None,
-        on_timesync: Callable[[TimesyncSample], None] | None = None,
+        on_timesync_sent: Callable[[int], None] | None = None,
         clock: Callable[[], int] = time.monotonic_ns,
     ) -> None:
         self.config = config
         self._on_event = on_event
-        self._on_timesync = on_timesync
+        self._on_timesync_sent = on_timesync_sent
         self._clock = clock
         self._ap_system = config.effective_autopilot_system
         self._ap_component: int | None = config.autopilot_component
@@ -340,12 +324,9 @@ class MavlinkLink:
         self._queue_drops = 0
         self._self_echoes = 0
         self._ts_sent = 0
-        self._ts_answered = 0
-        self._ts_unanswered = 0
         self._outages = 0
         self._transport_errors = 0
-        # timesync client
-        self._ts_pending: dict[int, int] = {}  # ts1 (= host tx ns) -> tx ns
+        # timesync requests
         self._ts_next_ns = 0
         self._ts_fast_left = 0
         # stream rates
@@ -493,8 +474,6 @@ class MavlinkLink:
                 queue_drops=self._queue_drops,
                 self_echoes=self._self_echoes,
                 timesync_sent=self._ts_sent,
-                timesync_answered=self._ts_answered,
-                timesync_unanswered=self._ts_unanswered,
                 outages=self._outages,
                 transport_errors=self._transport_errors,
             )
@@ -592,7 +571,6 @@ class MavlinkLink:
                 self._self_echoes += 1
             return
         events: list[LinkEvent] = []
-        timesync: TimesyncSample | None = None
         with self._lock:
             self._by_type[mtype] = self._by_type.get(mtype, 0) + 1
             if rec.mavlink_version == 1:
@@ -600,38 +578,22 @@ class MavlinkLink:
             else:
                 self._v2 += 1
             if src[0] == self._ap_system:
-                if self._ap_component is None and mtype == "HEARTBEAT" and self._is_autopilot_heartbeat(msg):
+                if self._ap_component is None and mtype == "HEARTBEAT" and is_autopilot_heartbeat(msg):
                     self._ap_component = src[1]
                 if src[1] == self._ap_component and self._ap_component is not None:
                     events.extend(self._autopilot_message_locked(rec, mtype))
-                    if mtype == "TIMESYNC":
-                        timesync = self._timesync_reply_locked(msg, rec.rx_ns)
-                    elif mtype == "COMMAND_ACK":
+                    if mtype == "COMMAND_ACK":
                         self._command_ack_locked(msg)
             subs = self._subs
         for event in events:
             level = logging.WARNING if event.kind is LinkEventKind.AUTOPILOT_REBOOTED else logging.INFO
             self._emit(event, level)
-        if timesync is not None and self._on_timesync is not None:
-            try:
-                self._on_timesync(timesync)
-            except Exception:
-                self._count_callback_error("timesync callback")
         for sub in subs:
             if sub.types is None or mtype in sub.types:
                 try:
                     sub.callback(rec)
                 except Exception:
                     self._count_callback_error(f"subscriber {sub.callback!r} on {mtype}")
-
-    @staticmethod
-    def _is_autopilot_heartbeat(msg: Any) -> bool:
-        return int(msg.autopilot) != mavlink2.MAV_AUTOPILOT_INVALID and int(msg.type) not in (
-            mavlink2.MAV_TYPE_GCS,
-            mavlink2.MAV_TYPE_CAMERA,
-            mavlink2.MAV_TYPE_GIMBAL,
-            mavlink2.MAV_TYPE_ONBOARD_CONTROLLER,
-        )
 
     def _autopilot_message_locked(self, rec: Received, mtype: str) -> list[LinkEvent]:
         events: list[LinkEvent] = []
@@ -649,11 +611,11 @@ class MavlinkLink:
             )
             self._autopilot_fresh_locked(now)
         self._last_ap_rx_ns = now
-        boot_ms = getattr(rec.msg, "time_boot_ms", None) if mtype in _BOOT_CLOCK_TYPES else None
+        boot_ms = getattr(rec.msg, "time_boot_ms", None) if mtype in BOOT_CLOCK_TYPES else None
         if isinstance(boot_ms, int):
             last = self._last_boot_ms
             self._last_boot_ms = boot_ms
-            if last is not None and boot_ms + _REBOOT_BACKSTEP_MS < last:
+            if last is not None and boot_ms + REBOOT_BACKSTEP_MS < last:
                 events.append(
                     LinkEvent(
                         LinkEventKind.AUTOPILOT_REBOOTED,
@@ -669,19 +631,8 @@ class MavlinkLink:
     def _autopilot_fresh_locked(self, now: int) -> None:
         """The autopilot appeared, came back or rebooted: streams may be at defaults, clocks may differ."""
         self._schedule_rates_locked()
-        self._ts_pending.clear()
         self._ts_fast_left = self.config.timesync_fast_count
         self._ts_next_ns = now
-
-    def _timesync_reply_locked(self, msg: Any, rx_ns: int) -> TimesyncSample | None:
-        tc1, ts1 = int(msg.tc1), int(msg.ts1)
-        if tc1 == 0:
-            return None  # a request from the autopilot, not an answer to ours
-        tx_ns = self._ts_pending.pop(ts1, None)
-        if tx_ns is None:
-            return None  # an answer to someone else's request, or too late
-        self._ts_answered += 1
-        return TimesyncSample(tx_ns, tc1, rx_ns)
 
     def _command_ack_locked(self, msg: Any) -> None:
         if int(msg.command) != mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL or not self._rate_jobs:
@@ -789,20 +740,14 @@ class MavlinkLink:
                     f"no message for {silent / 1e9:.3f} s",
                 )
                 events.append((lost, logging.WARNING))
-            # timesync client
-            if self.config.timesync:
-                timeout_ns = int(self.config.timesync_timeout_s * 1e9)
-                stale = [ts1 for ts1, tx in self._ts_pending.items() if now - tx > timeout_ns]
-                for ts1 in stale:
-                    del self._ts_pending[ts1]
-                self._ts_unanswered += len(stale)
-                if now >= self._ts_next_ns:
-                    fast = self._ts_fast_left > 0 and self._state is LinkState.UP
-                    hz = self.config.timesync_fast_hz if fast else self.config.timesync_slow_hz
-                    if fast:
-                        self._ts_fast_left -= 1
-                    self._ts_next_ns = now + int(1e9 / max(hz, 1e-3))
-                    send_timesync = True
+            # timesync requests
+            if self.config.timesync and now >= self._ts_next_ns:
+                fast = self._ts_fast_left > 0 and self._state is LinkState.UP
+                hz = self.config.timesync_fast_hz if fast else self.config.timesync_slow_hz
+                if fast:
+                    self._ts_fast_left -= 1
+                self._ts_next_ns = now + int(1e9 / max(hz, 1e-3))
+                send_timesync = True
             # stream rates, one command at a time (a COMMAND_ACK does not say which message it answers)
             while self._rate_jobs and self._state is LinkState.UP:
                 job = self._rate_jobs[0]
@@ -831,10 +776,15 @@ class MavlinkLink:
     def _send_timesync(self) -> None:
         tx_ns = self._clock()
         msg = self._packer.timesync_encode(0, tx_ns)
-        with self._lock:
-            self._ts_pending[tx_ns] = tx_ns
-            self._ts_sent += 1
-        self.send(msg)
+        # Told before the send, so that the request is known before its reply can arrive.
+        if self._on_timesync_sent is not None:
+            try:
+                self._on_timesync_sent(tx_ns)
+            except Exception:
+                self._count_callback_error("timesync_sent callback")
+        if self.send(msg):
+            with self._lock:
+                self._ts_sent += 1
 
     def _send_rate_request(self, rate: StreamRate, confirmation: int) -> None:
         with self._lock:

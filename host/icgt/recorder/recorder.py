@@ -1,41 +1,40 @@
 """`icgt record`: the synchroniser that runs on the drone's companion computer.
 
-Composition: the device link (serial), the MAVLink link (autopilot and ground station), the
-clock filters, the geotagger, the MAVLink camera component, the MCAP recorder and the local
-control socket. Threads: the device reader and the MAVLink reader deliver into the filters,
-the geotagger and the MCAP queue (never blocking); one worker thread schedules TIME_SYNC,
-emits geotagged frames and writes clock estimates; the camera component and the control
-socket call start/stop/shoot, which talk to the device.
+The recorder is I/O around one `icgt.sync.Synchroniser`: the device link (serial), the MAVLink
+link (autopilot and ground station), the MAVLink camera component, the MCAP log and the local
+control socket. Threads: the device reader and the MAVLink reader stamp what arrives and put it
+in one inbox (never blocking); one worker thread takes each input from the inbox, writes it to
+the log and then feeds it to the synchroniser, in that order, polls the synchroniser for frames,
+schedules TIME_SYNC and writes clock estimates and counters. Because the log holds every input in
+the order the synchroniser saw it, `icgt.ingest.recompute` gives back the same frames. The camera
+component and the control socket call start/stop/shoot, which talk to the device.
 """
 
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
+import queue
 import threading
 import time
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
 from icgt import __version__
-from icgt.clocks.autopilot_clock import AutopilotClockFilter, UtcMapper
-from icgt.clocks.device_clock import DeviceClockFilter, PpsUtcMapper
-from icgt.clocks.shared import Synchronized
 from icgt.control import ControlServer, Reply, Request
 from icgt.device import CommandRefusedError, DeviceLink, DeviceLinkError, LinkEvent, TimeSyncSample
 from icgt.errors import IcgtError
 from icgt.geodesy import q_conjugate, q_multiply
-from icgt.geotag import FrameRecord, Geotagger
-from icgt.geotag.clock_views import AutopilotClockView, UtcView, add_pps_edge
+from icgt.geotag import FrameRecord
 from icgt.geotag.geotagger import _Q_CAM_TO_BODY_BASE
 from icgt.mavlink.camera import CameraComponent, CameraConfig, CameraInfo, CapturedImage, CommandResult
-from icgt.mavlink.link import LinkConfig, MavlinkLink, Received, StreamRate, TimesyncSample
+from icgt.mavlink.link import LinkConfig, MavlinkLink, Received, StreamRate
 from icgt.mavlink.link import LinkEvent as MavlinkLinkEvent
-from icgt.mavlink.telemetry import TelemetryStore
 from icgt.protocol import MESSAGE_TYPES, PROTOCOL_VERSION, TABLE_HASH
 from icgt.protocol import Received as DeviceReceived
 from icgt.protocol.messages import (
@@ -43,14 +42,10 @@ from icgt.protocol.messages import (
     CaptureMode,
     ClockSource,
     Configure,
-    Exposure,
     Hello,
-    Imu,
     Log,
     LogLevel,
     PinPolarity,
-    Pps,
-    Range,
     SetTime,
     StartCapture,
     Status,
@@ -58,8 +53,9 @@ from icgt.protocol.messages import (
 )
 from icgt.recorder import topics
 from icgt.recorder.config import RecorderConfig
-from icgt.recording import McapRecorder, RecordingError
+from icgt.recording import McapRecorder, RecordingError, layout
 from icgt.recording.writer import McapLogHandler
+from icgt.sync import SyncConfig, Synchroniser
 
 log = logging.getLogger("icgt.recorder")
 
@@ -90,6 +86,12 @@ class RecorderStatus:
     frames_rejected: int
     pending_frames: int
     last_status: dict[str, Any] | None
+    timesync: str = ""  # the autopilot's TIMESYNC: answered / unanswered / not asked yet
+
+
+# Inputs from the reader threads to the worker, tagged by kind.
+_DEVICE, _EXCHANGE, _DEVICE_EVENT, _MAVLINK, _MAVLINK_EVENT, _TIMESYNC_SENT = range(6)
+_DRAIN_MAX = 2000  # inputs handled before the worker polls again (bounds frame latency under a flood)
 
 
 class Recorder:
@@ -99,44 +101,31 @@ class Recorder:
         self.config = config
         self._control_path = control_socket
         self._mono_to_utc_ns = time.time_ns() - time.monotonic_ns()  # fixed: log times stay monotonic
-        # Fed by the link readers, queried by the worker and the geotagger: one lock for all four
-        # (the UTC mapper reads the autopilot filter).
-        clock_lock = threading.RLock()
-        self.device_clock: DeviceClockFilter = cast(
-            DeviceClockFilter,
-            Synchronized(DeviceClockFilter(slow_interval_s=0.1), clock_lock),
-        )
-        autopilot = AutopilotClockFilter()
-        self.autopilot_clock: AutopilotClockFilter = cast(AutopilotClockFilter, Synchronized(autopilot, clock_lock))
-        self.utc: UtcMapper = cast(UtcMapper, Synchronized(UtcMapper(autopilot), clock_lock))
-        self.pps: PpsUtcMapper = cast(PpsUtcMapper, Synchronized(PpsUtcMapper(), clock_lock))
-        self.telemetry = TelemetryStore(autopilot_system=config.mavlink.system_id)
-        self.geotagger = Geotagger(
-            self.telemetry,
-            self.device_clock,
-            AutopilotClockView(self.autopilot_clock),
-            UtcView(self.pps, self.utc),
-            config.camera,
-            self._on_frame,
-        )
+        self.sync_config = SyncConfig(geotag=config.camera, autopilot_system=config.mavlink.system_id)
+        self.sync = Synchroniser(self.sync_config)  # fed and polled by the worker thread only
+        self._inbox: queue.SimpleQueue[tuple[int, Any, int]] = queue.SimpleQueue()
         self.mcap: McapRecorder | None = None
         self.device: DeviceLink | None = None
         self.mavlink: MavlinkLink | None = None
         self.camera: CameraComponent | None = None
         self.control: ControlServer | None = None
         self.hello: Hello | None = None
-        self.last_status: Status | None = None
         self.frames = 0
         self.exposures = 0
         self._capturing = False
         self._stop = threading.Event()
         self._worker: threading.Thread | None = None
+        self._worker_lock = threading.Lock()  # the worker's step, and stop()'s final drain
         self._log_handler: McapLogHandler | None = None
         self._registered: set[str] = set()
-        self._reg_lock = threading.Lock()
         self._next_sync_ns = 0
         self._next_clock_log_ns = 0
+        self._snapshot: dict[str, Any] = {}
         self.failure: IcgtError | None = None
+
+    @property
+    def last_status(self) -> Status | None:
+        return self.sync.last_status
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> Path:
@@ -146,17 +135,19 @@ class Recorder:
         stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
         path = cfg.output.dir / f"icgt_{stamp}.mcap"
         self.mcap = McapRecorder(path, max_chunk_interval_s=cfg.output.chunk_interval_s)
-        # Until the autopilot has GPS time, UTC comes from this computer's clock (flagged as such).
-        self.utc.add_host_realtime(time.monotonic_ns(), time.time_ns())
+        # Until the autopilot has GPS time, UTC comes from this computer's clock (flagged as such): the
+        # same fixed offset as the log times, which the recompute reads back from icgt.time_bases.
+        self.sync.on_host_realtime(0, self._mono_to_utc_ns)
         self._log_handler = McapLogHandler(self.mcap, topics.LOG)
         logging.getLogger("icgt").addHandler(self._log_handler)
         self._register_topics()
         self.mcap.add_metadata(
-            "icgt.config",
+            layout.META_CONFIG,
             {"source": cfg.source, "config": cfg.as_text(), "host_software": f"icgt {__version__}"},
         )
+        self.mcap.add_metadata(layout.META_SYNC, {"json": json.dumps(self.sync_config.to_json())})
         self.mcap.add_metadata(
-            "icgt.time_bases",
+            layout.META_TIME_BASES,
             {
                 "log_time": "host CLOCK_MONOTONIC + a fixed offset to UTC taken at start [ns since the Unix epoch]",
                 "monotonic_to_utc_offset_ns": str(self._mono_to_utc_ns),
@@ -166,9 +157,9 @@ class Recorder:
         )
         self.device = DeviceLink(
             cfg.device.url,
-            on_message=self._on_device_message,
-            on_event=self._on_device_link_event,
-            on_time_sync=self._on_time_sync,
+            on_message=lambda received, rx_ns: self._inbox.put((_DEVICE, received, rx_ns)),
+            on_event=lambda event: self._inbox.put((_DEVICE_EVENT, event, event.host_ns)),
+            on_time_sync=lambda sample: self._inbox.put((_EXCHANGE, sample, sample.host_rx_ns)),
         )
         try:
             self.hello = self.device.start()
@@ -195,9 +186,11 @@ class Recorder:
             with contextlib.suppress(IcgtError):
                 self.stop_capture()
         time.sleep(0.3)  # the last exposures' feedback and telemetry are still on their way
-        if self._worker is not None:
+        if self._worker is not None and self._worker is not threading.current_thread():
             self._worker.join(timeout=3.0)
-        self.geotagger.poll(time.monotonic_ns(), flush=True)
+        with self._worker_lock:
+            self._drain(limit=None)
+            self._emit(self.sync.poll(time.monotonic_ns(), flush=True))
         if self.control is not None:
             self.control.stop()
         if self.camera is not None:
@@ -206,6 +199,10 @@ class Recorder:
             self.mavlink.stop()
         if self.device is not None:
             self.device.stop()
+        with self._worker_lock:
+            self._drain(limit=None)  # what arrived while the links closed is still logged
+            self._emit(self.sync.poll(time.monotonic_ns(), flush=True))
+            self._write_counters(time.monotonic_ns())
         self._record_link_summary()
         self._close_log()
 
@@ -225,7 +222,7 @@ class Recorder:
                 log.error("%s", exc)
                 self.failure = self.failure or exc
 
-    # ------------------------------------------------------------------ device
+    # ------------------------------------------------------------------ log
     def _register_topics(self) -> None:
         assert self.mcap is not None
         for cls in MESSAGE_TYPES.values():
@@ -234,14 +231,15 @@ class Recorder:
                     topics.device_topic(cls.NAME), f"icgt.device.{cls.NAME}", topics.device_schema(cls)
                 )
         self.mcap.register_dataclass(topics.FRAMES, FrameRecord)
-        for name, schema in (
-            (topics.CLOCK_DEVICE, "icgt.clock.estimate"),
-            (topics.CLOCK_AUTOPILOT, "icgt.clock.estimate"),
-        ):
-            self.mcap.register_json(name, schema, _ESTIMATE_SCHEMA)
-        self.mcap.register_json(topics.CLOCK_DEVICE_EXCHANGES, "icgt.clock.exchange", _EXCHANGE_SCHEMA)
-        self.mcap.register_json(topics.CLOCK_UTC, "icgt.clock.utc", _UTC_SCHEMA)
-        self.mcap.register_json(topics.LINK_EVENTS, "icgt.link_event", _LINK_EVENT_SCHEMA)
+        for name in (layout.CLOCK_DEVICE, layout.CLOCK_AUTOPILOT):
+            self.mcap.register_json(name, "icgt.clock.estimate", layout.ESTIMATE_SCHEMA)
+        self.mcap.register_json(layout.CLOCK_DEVICE_EXCHANGES, "icgt.clock.exchange", layout.EXCHANGE_SCHEMA)
+        self.mcap.register_json(
+            layout.CLOCK_AUTOPILOT_REQUESTS, "icgt.clock.timesync_request", layout.TIMESYNC_REQUEST_SCHEMA
+        )
+        self.mcap.register_json(layout.CLOCK_UTC, "icgt.clock.utc", layout.UTC_SCHEMA)
+        self.mcap.register_json(layout.LINK_EVENTS, "icgt.link_event", layout.LINK_EVENT_SCHEMA)
+        self.mcap.register_json(layout.COUNTERS, "icgt.counters", layout.COUNTERS_SCHEMA)
 
     def _log_time(self, host_ns: int) -> int:
         return host_ns + self._mono_to_utc_ns
@@ -271,7 +269,7 @@ class Recorder:
         except ValueError:
             clock = str(hello.clock_source)
         self.mcap.add_metadata(
-            "icgt.device",
+            layout.META_DEVICE,
             {
                 "firmware_version": hello.firmware_version,
                 "protocol_version": str(hello.protocol_version),
@@ -285,10 +283,7 @@ class Recorder:
             },
         )
         c = self.config.camera
-        self.mcap.add_metadata(
-            "icgt.calibration",
-            {k: repr(v) for k, v in asdict(c).items()},
-        )
+        self.mcap.add_metadata(layout.META_CALIBRATION, {k: json.dumps(v) for k, v in asdict(c).items()})
         log.info(
             "device: %s on %s, firmware %s, serial %s",
             board,
@@ -297,6 +292,7 @@ class Recorder:
             hello.serial_number,
         )
 
+    # ------------------------------------------------------------------ device
     def _configure_device(self) -> None:
         assert self.device is not None
         s = self.config.sensors
@@ -334,48 +330,25 @@ class Recorder:
             topics.device_payload(msg, received.seq, received.flags, host_rx_ns),
             host_rx_ns,
         )
-        if isinstance(msg, Exposure):
+        self.sync.on_device(msg, host_rx_ns)
+        if msg.NAME == "EXPOSURE":
             self.exposures += 1
-            self.geotagger.add_exposure(msg, host_rx_ns)
-        elif isinstance(msg, Imu):
-            self.geotagger.add_imu(msg)
-        elif isinstance(msg, Range):
-            self.geotagger.add_range(msg)
-        elif isinstance(msg, Pps):
-            add_pps_edge(self.pps, self.utc, self.device_clock, msg.t_us, msg.pps_count)
-        elif isinstance(msg, Status):
-            self.last_status = msg
         elif isinstance(msg, Log):
             log.log(_DEVICE_LOG_LEVELS.get(msg.level, logging.INFO), "device: %s", msg.text)
-        elif isinstance(msg, Hello) and self.hello is not None and msg.t_us < self.hello.t_us:
-            log.warning("device rebooted (HELLO at device time %d us): its clock restarts", msg.t_us)
-            self.device_clock.reset()
-            self.hello = msg
 
     def _on_device_link_event(self, event: LinkEvent) -> None:
         level = logging.INFO if event.kind == "connected" else logging.WARNING
         log.log(level, "device link: %s", event.detail)
-        self._write(
-            topics.LINK_EVENTS,
-            {
-                "link": "device",
-                "kind": event.kind,
-                "detail": event.detail,
-                "count": event.count,
-                "outage_ns": event.outage_ns,
-                "host_ns": event.host_ns,
-            },
-            event.host_ns,
-        )
+        self._write_event("device", event.kind, event.detail, event.host_ns, event.count, event.outage_ns)
         if event.kind == "connected":
             self._next_sync_ns = 0  # resynchronise at the fast rate
 
     def _on_time_sync(self, sample: TimeSyncSample) -> None:
-        status = self.device_clock.add_exchange(
-            sample.host_tx_ns, sample.device_rx_us, sample.device_tx_us, sample.host_rx_ns
-        )
+        status = self.sync.on_exchange(sample.host_tx_ns, sample.device_rx_us, sample.device_tx_us, sample.host_rx_ns)
+        # Written after it was fed only because the status is part of the record; the recompute refits
+        # from these records in file order, which is the order they were fed.
         self._write(
-            topics.CLOCK_DEVICE_EXCHANGES,
+            layout.CLOCK_DEVICE_EXCHANGES,
             {
                 "host_tx_ns": sample.host_tx_ns,
                 "device_rx_us": sample.device_rx_us,
@@ -384,6 +357,13 @@ class Recorder:
                 "status": status.value,
             },
             sample.host_rx_ns,
+        )
+
+    def _write_event(self, link: str, kind: str, detail: str, host_ns: int, count: int = 0, outage_ns: int = 0) -> None:
+        self._write(
+            layout.LINK_EVENTS,
+            {"link": link, "kind": kind, "detail": detail, "count": count, "outage_ns": outage_ns, "host_ns": host_ns},
+            host_ns,
         )
 
     # ------------------------------------------------------------------ capture commands
@@ -445,11 +425,10 @@ class Recorder:
         )
         self.mavlink = MavlinkLink(
             LinkConfig(url=cfg.url, system_id=cfg.system_id, stream_rates=rates),
-            on_event=self._on_mavlink_event,
-            on_timesync=self._on_autopilot_timesync,
+            on_event=lambda event: self._inbox.put((_MAVLINK_EVENT, event, event.host_ns)),
+            on_timesync_sent=lambda tx_ns: self._inbox.put((_TIMESYNC_SENT, tx_ns, tx_ns)),
         )
-        self.telemetry.attach(self.mavlink)
-        self.mavlink.subscribe(self._on_mavlink_message)
+        self.mavlink.subscribe(lambda rec: self._inbox.put((_MAVLINK, rec, rec.rx_ns)))
         self.mavlink.start()
         c = self.config.camera
         info = CameraInfo(
@@ -490,35 +469,26 @@ class Recorder:
         if name == "BAD_DATA":
             return
         topic = topics.mavlink_topic(name)
-        if topic not in self._registered:
-            with self._reg_lock:
-                if topic not in self._registered and self.mcap is not None:
-                    with contextlib.suppress(RecordingError):
-                        self.mcap.register_json(topic, f"mavlink.{name}", topics.mavlink_schema(rec.msg))
-                    self._registered.add(topic)
+        if topic not in self._registered and self.mcap is not None:
+            with contextlib.suppress(RecordingError):
+                self.mcap.register_json(topic, f"mavlink.{name}", topics.mavlink_schema(rec.msg))
+            self._registered.add(topic)
         self._write(topic, topics.mavlink_payload(rec.msg, rec.rx_ns), rec.rx_ns)
-        if name == "SYSTEM_TIME" and rec.src_system == self.config.mavlink.system_id:
-            self.utc.add_system_time(int(rec.msg.time_unix_usec), int(rec.msg.time_boot_ms))
+        self.sync.on_mavlink(rec.msg, rec.rx_ns)
+
+    def _on_timesync_sent(self, tx_ns: int) -> None:
+        self._write(layout.CLOCK_AUTOPILOT_REQUESTS, {"host_tx_ns": tx_ns}, tx_ns)
+        self.sync.on_timesync_request(tx_ns)
 
     def _on_mavlink_event(self, event: MavlinkLinkEvent) -> None:
         # MavlinkLink logs the event itself (icgt.mavlink.link, also on /icgt/log); here it only goes on the topic.
-        self._write(
-            topics.LINK_EVENTS,
-            {
-                "link": "mavlink",
-                "kind": event.kind.value,
-                "detail": event.detail,
-                "count": 0,
-                "outage_ns": event.outage_ns or 0,
-                "host_ns": event.host_ns,
-            },
-            event.host_ns,
-        )
-
-    def _on_autopilot_timesync(self, sample: TimesyncSample) -> None:
-        self.autopilot_clock.add_timesync(sample.host_tx_ns, sample.autopilot_tc1_ns, sample.host_rx_ns)
+        self._write_event("mavlink", event.kind.value, event.detail, event.host_ns, 0, event.outage_ns or 0)
 
     # ------------------------------------------------------------------ frames
+    def _emit(self, records: list[FrameRecord]) -> None:
+        for rec in records:
+            self._on_frame(rec)
+
     def _on_frame(self, rec: FrameRecord) -> None:
         self.frames += 1
         utc_ns = rec.mid_utc_us * 1000 if rec.mid_utc_us is not None else self._log_time(rec.mid_host_ns)
@@ -552,31 +522,85 @@ class Recorder:
 
     # ------------------------------------------------------------------ worker
     def _work(self) -> None:
-        while not self._stop.wait(0.02):
+        while not self._stop.is_set():
             try:
-                self._work_once()
+                item = self._inbox.get(timeout=0.02)
+            except queue.Empty:
+                item = None
+            try:
+                with self._worker_lock:
+                    if item is not None:
+                        self._handle(item)
+                        self._drain(limit=_DRAIN_MAX)
+                    self._work_once()
             except Exception:  # the worker must outlive any bug: frames keep being emitted
                 log.exception("recorder worker error (recording continues)")
+
+    def _drain(self, limit: int | None) -> None:
+        n = 0
+        while limit is None or n < limit:
+            try:
+                item = self._inbox.get_nowait()
+            except queue.Empty:
+                return
+            self._handle(item)
+            n += 1
+
+    def _handle(self, item: tuple[int, Any, int]) -> None:
+        kind, payload, _ = item
+        if kind == _DEVICE:
+            self._on_device_message(payload, item[2])
+        elif kind == _MAVLINK:
+            self._on_mavlink_message(payload)
+        elif kind == _EXCHANGE:
+            self._on_time_sync(payload)
+        elif kind == _TIMESYNC_SENT:
+            self._on_timesync_sent(payload)
+        elif kind == _DEVICE_EVENT:
+            self._on_device_link_event(payload)
+        elif kind == _MAVLINK_EVENT:
+            self._on_mavlink_event(payload)
 
     def _work_once(self) -> None:
         now = time.monotonic_ns()
         if self.device is not None and self.device.connected and now >= self._next_sync_ns:
             with contextlib.suppress(DeviceLinkError):
                 self.device.request_time_sync()
-            self._next_sync_ns = now + int(self.device_clock.next_exchange_interval_s() * 1e9)
-        self.geotagger.poll(now)
+            self._next_sync_ns = now + int(self.sync.next_exchange_interval_s() * 1e9)
+        self._emit(self.sync.poll(now))
+        for event in self.sync.take_events():
+            self._write_event("sync", event.kind, event.detail, event.host_ns)
         if now >= self._next_clock_log_ns:
             self._next_clock_log_ns = now + 1_000_000_000
-            self._write(topics.CLOCK_DEVICE, self.device_clock.estimate().to_dict(), now)
-            self._write(topics.CLOCK_AUTOPILOT, self.autopilot_clock.estimate().to_dict(), now)
-            self._write(topics.CLOCK_UTC, self.utc.host_to_utc(now).to_dict() | {"host_ns": now}, now)
+            sync = self.sync
+            device_est = sync.device_clock.estimate()
+            self._write(layout.CLOCK_DEVICE, device_est.to_dict(), now)
+            self._write(layout.CLOCK_AUTOPILOT, sync.autopilot_clock.estimate().to_dict(), now)
+            self._write(layout.CLOCK_UTC, sync.utc.host_to_utc(now).to_dict() | {"host_ns": now}, now)
+            self._write_counters(now)
+            self._snapshot = {
+                "device_clock_settled": sync.device_clock.settled,
+                "device_clock_uncertainty_us": device_est.uncertainty_ns / 1000.0 if device_est.valid else None,
+                "pending_frames": sync.pending_frames,
+                "sync": sync.counters(),
+            }
+
+    def _write_counters(self, now: int) -> None:
+        record: dict[str, Any] = {"host_ns": now, "sync": self.sync.counters()}
+        if self.device is not None:
+            record["device"] = {k: v for k, v in self.device.decoder_stats.items() if v is not None}
+        if self.mavlink is not None:
+            stats = asdict(self.mavlink.stats())
+            stats.pop("messages_by_type", None)
+            record["mavlink"] = stats
+        self._write(layout.COUNTERS, record, now)
 
     def _record_link_summary(self) -> None:
-        origin = self.geotagger.origin
+        origin = self.sync.geotagger.origin
         if origin is not None and self.mcap is not None:
             with contextlib.suppress(RecordingError):
                 self.mcap.add_metadata(
-                    "icgt.enu_origin",
+                    layout.META_ENU_ORIGIN,
                     {
                         "lat_deg": repr(origin[0]),
                         "lon_deg": repr(origin[1]),
@@ -596,12 +620,14 @@ class Recorder:
         )
         if self.mcap is not None:
             with contextlib.suppress(RecordingError):
-                self.mcap.add_metadata("icgt.device_link", {k: str(v) for k, v in stats.items()})
+                self.mcap.add_metadata(layout.META_DEVICE_LINK, {k: str(v) for k, v in stats.items()})
 
     # ------------------------------------------------------------------ control socket
     def status(self) -> RecorderStatus:
-        est = self.device_clock.estimate()
+        """What the recorder knows now (the synchroniser's part as of its last second: it runs on the worker)."""
+        snap = self._snapshot
         stats = self.device.decoder_stats if self.device is not None else {}
+        last = self.sync.last_status
         return RecorderStatus(
             file=str(self.mcap.path) if self.mcap is not None else "",
             capturing=self._capturing,
@@ -609,13 +635,14 @@ class Recorder:
             exposures=self.exposures,
             device_connected=self.device is not None and self.device.connected,
             autopilot=self.mavlink.state.value if self.mavlink is not None else "none",
-            device_clock_settled=self.device_clock.settled,
-            device_clock_uncertainty_us=est.uncertainty_ns / 1000.0 if est.valid else None,
+            device_clock_settled=bool(snap.get("device_clock_settled", False)),
+            device_clock_uncertainty_us=snap.get("device_clock_uncertainty_us"),
             sequence_gaps=int(stats.get("seq_gaps") or 0),
             messages_lost=int(stats.get("seq_missed") or 0),
             frames_rejected=self.device.frames_rejected if self.device is not None else 0,
-            pending_frames=self.geotagger.pending,
-            last_status=asdict(self.last_status) if self.last_status is not None else None,
+            pending_frames=int(snap.get("pending_frames", 0)),
+            last_status=asdict(last) if last is not None else None,
+            timesync=_timesync_status(snap.get("sync", {})),
         )
 
     def _handle_control(self, request: Request) -> Reply:
@@ -633,6 +660,17 @@ class Recorder:
         return {"error": f"unknown command {command!r} (start, stop, status)"}
 
 
+def _timesync_status(counters: dict[str, int]) -> str:
+    """`icgt status`'s word on the autopilot clock: answered, unanswered or not asked yet."""
+    sent = counters.get("timesync_sent", 0)
+    answered = counters.get("timesync_answered", 0)
+    if sent == 0:
+        return "not asked yet"
+    if answered == 0:
+        return f"unanswered ({counters.get('timesync_unanswered', 0)} of {sent} requests)"
+    return f"answered ({answered} of {sent} requests)"
+
+
 class _CaptureHandler:
     """The camera component's CaptureHandler: ground-station commands become device commands."""
 
@@ -647,59 +685,3 @@ class _CaptureHandler:
 
     def shoot(self) -> CommandResult:
         return self._r._handler_result(lambda: self._r.start_capture(None, 1))
-
-
-_NUM = {"type": "number"}
-_INT = {"type": "integer"}
-_ESTIMATE_SCHEMA = {
-    "type": "object",
-    "description": "clock line: host_ns = ref_host_ns + (clock_us - ref_clock_us) * 1000 / (1 + drift_ppm * 1e-6)",
-    "properties": {
-        "valid": {"type": "boolean"},
-        "settled": {"type": "boolean"},
-        "n_used": _INT,
-        "ref_clock_us": _NUM,
-        "ref_host_ns": _INT,
-        "drift_ppm": _NUM,
-        "uncertainty_ns": _INT,
-        "t_host_ns": _INT,
-        "min_rtt_ns": _INT,
-        "span_s": _NUM,
-        "resets": _INT,
-    },
-}
-_EXCHANGE_SCHEMA = {
-    "type": "object",
-    "description": "one TIME_SYNC exchange with the device",
-    "properties": {
-        "host_tx_ns": _INT,
-        "device_rx_us": _INT,
-        "device_tx_us": _INT,
-        "host_rx_ns": _INT,
-        "status": {"type": "string"},
-    },
-}
-_UTC_SCHEMA = {
-    "type": "object",
-    "description": "UTC of host_ns",
-    "properties": {
-        "valid": {"type": "boolean"},
-        "utc_us": _NUM,
-        "uncertainty_us": _NUM,
-        "source": {"type": "string"},
-        "fallback": {"type": "boolean"},
-        "host_ns": _INT,
-    },
-}
-_LINK_EVENT_SCHEMA = {
-    "type": "object",
-    "description": "a link state change, sequence gap or rejected frames",
-    "properties": {
-        "link": {"type": "string"},
-        "kind": {"type": "string"},
-        "detail": {"type": "string"},
-        "count": _INT,
-        "outage_ns": _INT,
-        "host_ns": _INT,
-    },
-}

@@ -1,4 +1,4 @@
-"""What goes on which MCAP topic, and the self-describing schemas of the raw streams.
+"""How messages become MCAP records: payloads and self-describing schemas of the raw streams, Foxglove views.
 
 Raw device messages and raw MAVLink messages are recorded as they came, one topic per
 message type, so poses can be recomputed later without re-flying. Their JSON Schemas are
@@ -21,27 +21,50 @@ from icgt.geotag import FrameRecord
 from icgt.protocol import Message
 from icgt.protocol.messages import FIELD_TYPES
 
-FRAMES = "/frames"
-FRAMES_LOCATION = "/frames/location"
-FRAMES_POSE = "/frames/pose"
-TF = "/tf"
-LOG = "/icgt/log"
-LINK_EVENTS = "/icgt/link_events"
-CLOCK_DEVICE = "/clock/device"
-CLOCK_DEVICE_EXCHANGES = "/clock/device/exchanges"
-CLOCK_AUTOPILOT = "/clock/autopilot"
-CLOCK_UTC = "/clock/utc"
-WORLD_FRAME = "enu"
-CAMERA_FRAME = "camera"
+# Topic names live in the log layout (one declaration for the writer and every reader).
+from icgt.recording.layout import (
+    CAMERA_FRAME,
+    CLOCK_AUTOPILOT,
+    CLOCK_AUTOPILOT_REQUESTS,
+    CLOCK_DEVICE,
+    CLOCK_DEVICE_EXCHANGES,
+    CLOCK_UTC,
+    COUNTERS,
+    FRAMES,
+    FRAMES_LOCATION,
+    FRAMES_POSE,
+    LINK_EVENTS,
+    LOG,
+    TF,
+    WORLD_FRAME,
+    device_topic,
+    mavlink_topic,
+)
 
-
-def device_topic(name: str) -> str:
-    return f"/device/{name.lower()}"
-
-
-def mavlink_topic(name: str) -> str:
-    return f"/mavlink/{name.lower()}"
-
+__all__ = [
+    "CAMERA_FRAME",
+    "CLOCK_AUTOPILOT",
+    "CLOCK_AUTOPILOT_REQUESTS",
+    "CLOCK_DEVICE",
+    "CLOCK_DEVICE_EXCHANGES",
+    "CLOCK_UTC",
+    "COUNTERS",
+    "FRAMES",
+    "FRAMES_LOCATION",
+    "FRAMES_POSE",
+    "LINK_EVENTS",
+    "LOG",
+    "TF",
+    "WORLD_FRAME",
+    "device_payload",
+    "device_schema",
+    "device_topic",
+    "location_fix",
+    "mavlink_payload",
+    "mavlink_schema",
+    "mavlink_topic",
+    "pose_and_transform",
+]
 
 _DEVICE_JSON_TYPES = {"f32": "number", "f64": "number"}
 

@@ -1,0 +1,144 @@
+"""The layout of an ICGT log: every topic name, what its messages are, and the JSON schemas of our own records.
+
+The one place the writer (`icgt record`) and every reader (`icgt.read`, the recompute, the exports,
+the simulator's scoring) take topic names from. Raw streams are kept as they came so that frames can
+be recomputed later; derived ones (frames, clock estimates) say how they were made.
+
+* ``/frames`` (JSON, `FrameRecord`): one geotagged record per exposure;
+* ``/frames/location``, ``/frames/pose``, ``/tf`` (protobuf, Foxglove): the same frames for Foxglove's
+  map and 3D panels;
+* ``/device/<message>`` (JSON): every device message (EXPOSURE, IMU, RANGE, PPS, HELLO, STATUS, LOG, ...)
+  with its host receive time ``host_rx_ns``;
+* ``/mavlink/<message>`` (JSON): every MAVLink message received, with ``host_rx_ns`` and the raw frame
+  (base64);
+* ``/clock/device/exchanges`` (JSON): every device TIME_SYNC exchange (the device clock is refitted
+  from these);
+* ``/clock/autopilot/requests`` (JSON): every MAVLink TIMESYNC request sent (replies are paired
+  against these);
+* ``/clock/device``, ``/clock/autopilot``, ``/clock/utc`` (JSON): the clock estimates once a second;
+* ``/icgt/link_events`` (JSON): link state changes, sequence gaps, rejected frames, synchroniser notices;
+* ``/icgt/log`` (Foxglove Log): the recorder's own log;
+* ``/icgt/counters`` (JSON): link and synchroniser counters once a second.
+
+Metadata records: ``icgt.config`` (the effective configuration), ``icgt.sync`` (the synchroniser's
+settings as JSON: `icgt.sync.SyncConfig`), ``icgt.calibration`` (camera and mounting, for people),
+``icgt.device``, ``icgt.time_bases``, ``icgt.enu_origin``, ``icgt.device_link``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from icgt.protocol import MESSAGE_TYPES, Message
+
+FRAMES = "/frames"
+FRAMES_LOCATION = "/frames/location"
+FRAMES_POSE = "/frames/pose"
+TF = "/tf"
+LOG = "/icgt/log"
+LINK_EVENTS = "/icgt/link_events"
+COUNTERS = "/icgt/counters"
+CLOCK_DEVICE = "/clock/device"
+CLOCK_DEVICE_EXCHANGES = "/clock/device/exchanges"
+CLOCK_AUTOPILOT = "/clock/autopilot"
+CLOCK_AUTOPILOT_REQUESTS = "/clock/autopilot/requests"
+CLOCK_UTC = "/clock/utc"
+DEVICE_PREFIX = "/device/"
+MAVLINK_PREFIX = "/mavlink/"
+WORLD_FRAME = "enu"
+CAMERA_FRAME = "camera"
+
+META_CONFIG = "icgt.config"
+META_SYNC = "icgt.sync"
+META_CALIBRATION = "icgt.calibration"
+META_DEVICE = "icgt.device"
+META_TIME_BASES = "icgt.time_bases"
+META_ENU_ORIGIN = "icgt.enu_origin"
+META_DEVICE_LINK = "icgt.device_link"
+
+
+def device_topic(name: str) -> str:
+    """Topic of a device message type (its table name, e.g. EXPOSURE -> /device/exposure)."""
+    return f"{DEVICE_PREFIX}{name.lower()}"
+
+
+def mavlink_topic(name: str) -> str:
+    """Topic of a MAVLink message type (e.g. GLOBAL_POSITION_INT -> /mavlink/global_position_int)."""
+    return f"{MAVLINK_PREFIX}{name.lower()}"
+
+
+DEVICE_TOPIC_TYPES: dict[str, type[Message]] = {
+    device_topic(cls.NAME): cls for cls in MESSAGE_TYPES.values() if cls.DIRECTION == "device_to_host"
+}
+"""Device message class of each /device/... topic."""
+
+_NUM = {"type": "number"}
+_INT = {"type": "integer"}
+
+ESTIMATE_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "description": "clock line: host_ns = ref_host_ns + (clock_us - ref_clock_us) * 1000 / (1 + drift_ppm * 1e-6)",
+    "properties": {
+        "valid": {"type": "boolean"},
+        "settled": {"type": "boolean"},
+        "n_used": _INT,
+        "ref_clock_us": _NUM,
+        "ref_host_ns": _INT,
+        "drift_ppm": _NUM,
+        "uncertainty_ns": _INT,
+        "t_host_ns": _INT,
+        "min_rtt_ns": _INT,
+        "span_s": _NUM,
+        "resets": _INT,
+    },
+}
+EXCHANGE_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "description": "one TIME_SYNC exchange with the device",
+    "properties": {
+        "host_tx_ns": _INT,
+        "device_rx_us": _INT,
+        "device_tx_us": _INT,
+        "host_rx_ns": _INT,
+        "status": {"type": "string"},
+    },
+}
+TIMESYNC_REQUEST_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "description": "one MAVLink TIMESYNC request sent to the autopilot (ts1 = host_tx_ns)",
+    "properties": {"host_tx_ns": _INT},
+}
+UTC_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "description": "UTC of host_ns",
+    "properties": {
+        "valid": {"type": "boolean"},
+        "utc_us": _NUM,
+        "uncertainty_us": _NUM,
+        "source": {"type": "string"},
+        "fallback": {"type": "boolean"},
+        "host_ns": _INT,
+    },
+}
+LINK_EVENT_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "description": "a link state change, sequence gap, rejected frames or a synchroniser notice",
+    "properties": {
+        "link": {"type": "string"},
+        "kind": {"type": "string"},
+        "detail": {"type": "string"},
+        "count": _INT,
+        "outage_ns": _INT,
+        "host_ns": _INT,
+    },
+}
+COUNTERS_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "description": "counters of the links and the synchroniser (cumulative since start)",
+    "properties": {
+        "host_ns": _INT,
+        "device": {"type": "object"},
+        "mavlink": {"type": "object"},
+        "sync": {"type": "object"},
+    },
+}

@@ -1,0 +1,237 @@
+"""The synchroniser: device stream + autopilot telemetry in, geotagged frames out. No I/O, one thread.
+
+`Synchroniser` owns every clock filter (device -> host, autopilot -> host, PPS -> UTC, host -> UTC),
+the telemetry buffers, the geotagger and every acceptance rule (which autopilot and component to
+believe, which TIMESYNC replies are ours, when the autopilot or the device rebooted). It does no
+I/O and takes no locks: the recorder (`icgt record`) reads the links on its threads, hands each input
+to one worker thread that writes it to the log and then feeds it here, in that order; the offline
+recompute (`icgt.ingest.recompute`) reads the same inputs back from the log, in the same order, and
+feeds the same object. What one sees, the other sees, so a recomputation with the recorded settings
+gives back every frame exactly.
+
+Inputs (each is a logged record; the topic is in `icgt.recording.layout`):
+
+* `on_device(message, rx_ns)`: a device message (EXPOSURE, IMU, RANGE, PPS, HELLO, STATUS) and the host
+  receive time [ns, CLOCK_MONOTONIC];
+* `on_exchange(...)`: one device TIME_SYNC exchange;
+* `on_timesync_request(ts1_ns)`: a MAVLink TIMESYNC request this host sent;
+* `on_mavlink(msg, rx_ns)`: any MAVLink message received (pymavlink object), stamped on arrival;
+* `on_host_realtime(host_ns, realtime_ns)`: the host's CLOCK_REALTIME next to CLOCK_MONOTONIC.
+
+Output: `poll(now_ns)` returns the frames ready at host time ``now_ns`` (their later pose sample has
+arrived, or their wait ran out); each record carries ``emitted_host_ns = now_ns``, which is how the
+recompute knows when to poll.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from icgt.clocks.autopilot_clock import AutopilotClockFilter, UtcMapper
+from icgt.clocks.device_clock import DeviceClockFilter, ExchangeStatus, PpsUtcMapper
+from icgt.geotag.clock_views import AutopilotClockView, UtcView, add_pps_edge
+from icgt.geotag.geotagger import GeotagConfig, Geotagger
+from icgt.geotag.record import FrameRecord
+from icgt.mavlink.autopilot_rules import AutopilotPresence, Freshness
+from icgt.mavlink.link import Received
+from icgt.mavlink.telemetry import TelemetryStore
+from icgt.protocol.messages import Exposure, Hello, Imu, Message, Pps, Range, Status
+from icgt.sync.timesync import TimesyncPairing, TimesyncReply
+
+__all__ = ["SyncConfig", "SyncEvent", "Synchroniser"]
+
+log = logging.getLogger(__name__)
+
+UNANSWERED_TIMESYNC_WARNING = 10  # requests without any answer before the log says so (once)
+
+
+@dataclass(frozen=True)
+class SyncConfig:
+    """Everything that decides what the synchroniser makes of its inputs (stored in the log as JSON)."""
+
+    geotag: GeotagConfig = dataclasses.field(default_factory=GeotagConfig)
+    autopilot_system: int = 1  # the vehicle's MAVLink system id
+    autopilot_component: int | None = None  # None: the first HEARTBEAT of a flight controller of that system
+    autopilot_timeout_s: float = 3.0  # silence after which the autopilot counts as gone (and back when heard)
+    timesync_timeout_s: float = 1.0  # an unanswered TIMESYNC request is forgotten after this
+
+    def to_json(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> SyncConfig:
+        """Inverse of `to_json` (lists back to tuples); unknown keys are ignored, missing ones default."""
+        geo_fields = {f.name for f in dataclasses.fields(GeotagConfig)}
+        geo: dict[str, Any] = {
+            k: tuple(v) if isinstance(v, list) else v
+            for k, v in dict(data.get("geotag") or {}).items()
+            if k in geo_fields
+        }
+        top = {f.name for f in dataclasses.fields(cls)} - {"geotag"}
+        rest = {k: v for k, v in data.items() if k in top}
+        return cls(geotag=GeotagConfig(**geo), **rest)
+
+
+@dataclass(frozen=True, slots=True)
+class SyncEvent:
+    """Something the synchroniser noticed that belongs in the log (kind, host time [ns], detail)."""
+
+    kind: str
+    host_ns: int
+    detail: str
+
+
+class Synchroniser:
+    """One flight's synchronisation state. Not thread-safe by design: feed and poll from one thread."""
+
+    def __init__(
+        self,
+        config: SyncConfig | None = None,
+        *,
+        device_clock: DeviceClockFilter | None = None,
+        autopilot_clock: AutopilotClockFilter | None = None,
+    ) -> None:
+        self.config = cfg = config or SyncConfig()
+        self.device_clock = device_clock or DeviceClockFilter(slow_interval_s=0.1)
+        self.autopilot_clock = autopilot_clock or AutopilotClockFilter()
+        self.utc = UtcMapper(self.autopilot_clock)
+        self.pps = PpsUtcMapper()
+        self.telemetry = TelemetryStore(autopilot_system=cfg.autopilot_system)
+        self.autopilot = AutopilotPresence(
+            cfg.autopilot_system, cfg.autopilot_component, int(cfg.autopilot_timeout_s * 1e9)
+        )
+        self.timesync = TimesyncPairing(int(cfg.timesync_timeout_s * 1e9))
+        self._ready: list[FrameRecord] = []
+        self.geotagger = Geotagger(
+            self.telemetry,
+            self.device_clock,
+            AutopilotClockView(self.autopilot_clock),
+            UtcView(self.pps, self.utc),
+            cfg.geotag,
+            self._ready.append,
+        )
+        self.hello: Hello | None = None
+        self.last_status: Status | None = None
+        self.events: list[SyncEvent] = []  # drained by the caller (`take_events`)
+        self.counts: dict[str, int] = {
+            "exposures": 0,
+            "exchanges": 0,
+            "mavlink_messages": 0,
+            "device_reboots": 0,
+            "autopilot_reboots": 0,
+            "frames": 0,
+        }
+        self._timesync_warned = False
+
+    # ------------------------------------------------------------------ inputs
+    def on_device(self, msg: Message, rx_ns: int) -> None:
+        """A device message as received (any type; those that carry nothing for the frames are kept as state)."""
+        if isinstance(msg, Imu):
+            self.geotagger.add_imu(msg)
+        elif isinstance(msg, Range):
+            self.geotagger.add_range(msg)
+        elif isinstance(msg, Exposure):
+            self.counts["exposures"] += 1
+            self.geotagger.add_exposure(msg, rx_ns)
+        elif isinstance(msg, Pps):
+            add_pps_edge(self.pps, self.utc, self.device_clock, msg.t_us, msg.pps_count)
+        elif isinstance(msg, Status):
+            self.last_status = msg
+        elif isinstance(msg, Hello):
+            if self.hello is not None and msg.t_us < self.hello.t_us:
+                # The device rebooted: its microsecond clock restarted, the old mapping means nothing.
+                self.device_clock.reset()
+                self.counts["device_reboots"] += 1
+                self._event("device_rebooted", rx_ns, f"HELLO at device time {msg.t_us} us: its clock restarted")
+            self.hello = msg
+
+    def on_exchange(self, host_tx_ns: int, device_rx_us: int, device_tx_us: int, host_rx_ns: int) -> ExchangeStatus:
+        """One device TIME_SYNC exchange (host send/receive [ns], device receive/transmit [us])."""
+        self.counts["exchanges"] += 1
+        return self.device_clock.add_exchange(host_tx_ns, device_rx_us, device_tx_us, host_rx_ns)
+
+    def on_timesync_request(self, ts1_ns: int) -> None:
+        """A TIMESYNC request this host sent (ts1 = its send time [ns, host clock])."""
+        self.timesync.request_sent(ts1_ns)
+
+    def on_host_realtime(self, host_ns: int, realtime_ns: int) -> None:
+        """The host's CLOCK_REALTIME [ns] at CLOCK_MONOTONIC ``host_ns``: UTC until the autopilot has GPS time."""
+        self.utc.add_host_realtime(host_ns, realtime_ns)
+
+    def on_mavlink(self, msg: Any, rx_ns: int) -> TimesyncReply | None:
+        """Any MAVLink message; returns the TIMESYNC round trip when it was a reply to us."""
+        self.counts["mavlink_messages"] += 1
+        mtype = str(msg.get_type())
+        fresh = self.autopilot.observe(msg, mtype, rx_ns)
+        if fresh is not None and fresh is not Freshness.SAME:
+            self.timesync.forget()
+            if fresh is Freshness.REBOOTED:
+                self.counts["autopilot_reboots"] += 1
+            self._event(fresh.value, rx_ns, self.autopilot.detail)
+        if mtype == "TIMESYNC":
+            if fresh is None:
+                return None  # not from the autopilot we follow
+            reply = self.timesync.reply(msg, rx_ns)
+            if reply is not None:
+                self.autopilot_clock.add_timesync(reply.host_tx_ns, reply.autopilot_tc1_ns, reply.host_rx_ns)
+            return reply
+        if mtype == "HEARTBEAT":
+            return None
+        self.telemetry.ingest(Received(msg, rx_ns))
+        if mtype == "SYSTEM_TIME" and int(msg.get_srcSystem()) == self.config.autopilot_system:
+            self.utc.add_system_time(int(msg.time_unix_usec), int(msg.time_boot_ms))
+        return None
+
+    # ------------------------------------------------------------------ output
+    def poll(self, now_ns: int, *, flush: bool = False) -> list[FrameRecord]:
+        """The frames ready at host time ``now_ns`` (all pending ones with ``flush``), in exposure order."""
+        self.timesync.expire(now_ns)
+        if (
+            not self._timesync_warned
+            and self.timesync.answered == 0
+            and self.timesync.unanswered >= UNANSWERED_TIMESYNC_WARNING
+        ):
+            self._timesync_warned = True
+            self._event(
+                "timesync_unanswered",
+                now_ns,
+                f"the autopilot answered none of {self.timesync.unanswered} TIMESYNC requests: "
+                "no autopilot clock mapping",
+            )
+        self.geotagger.poll(now_ns, flush=flush)
+        ready, self._ready[:] = list(self._ready), []
+        self.counts["frames"] += len(ready)
+        return ready
+
+    @property
+    def pending_frames(self) -> int:
+        return self.geotagger.pending
+
+    def next_exchange_interval_s(self) -> float:
+        """Seconds until the next device TIME_SYNC request should go out."""
+        return self.device_clock.next_exchange_interval_s()
+
+    def take_events(self) -> list[SyncEvent]:
+        events, self.events = self.events, []
+        return events
+
+    def counters(self) -> dict[str, int]:
+        """Everything counted, for the log and `icgt status`."""
+        t = self.timesync
+        return {
+            **self.counts,
+            "timesync_sent": t.sent,
+            "timesync_answered": t.answered,
+            "timesync_unanswered": t.unanswered,
+            "timesync_foreign": t.foreign,
+            "pending_frames": self.pending_frames,
+            **{f"telemetry_{k}": v for k, v in self.telemetry.counts().items()},
+        }
+
+    def _event(self, kind: str, host_ns: int, detail: str) -> None:
+        log.info("%s: %s", kind, detail)
+        self.events.append(SyncEvent(kind, host_ns, detail))

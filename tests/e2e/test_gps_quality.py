@@ -6,11 +6,11 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from replay_check import assert_replay_reproduces_every_frame
 
 from icgt.demo import Flight, fly
 from icgt.sim.evaluate import evaluate, read_frames, read_truth
 from icgt.sim.scenario import load_scenario
-from replay_check import assert_replay_reproduces_every_frame
 
 SCENARIO = Path(__file__).with_name("gps_denied.toml")
 

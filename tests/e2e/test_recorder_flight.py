@@ -18,11 +18,11 @@ import pytest
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 from pymavlink import mavutil
+from replay_check import assert_replay_reproduces_every_frame
 
 from icgt.demo import Flight, fly
 from icgt.sim.evaluate import evaluate, read_frames, read_truth
 from icgt.sim.scenario import load_scenario
-from replay_check import assert_replay_reproduces_every_frame
 
 SCENARIO = Path(__file__).with_name("short_flight.toml")
 
@@ -93,8 +93,10 @@ def test_autopilot_link_loss_is_recorded_and_frames_still_geotagged_or_flagged(
     for f in frames:
         if f.get("lat_deg") is None:
             assert {"no_fix", "no_attitude"} & set(f["flags"]), f
-        elif f["pose_gap_before_ms"] > 100 or f["pose_gap_after_ms"] > 100:
-            assert {"stale_pose", "pose_extrapolated"} & set(f["flags"]), f
+        elif "pose_gap_after_ms" not in f:  # nothing after mid-exposure was used (JSON has no infinity)
+            assert "pose_extrapolated" in f["flags"], f
+        elif f["position_error_bound_m"] > 0.10:  # the recorder's default max_position_error_m
+            assert "stale_pose" in f["flags"], f
 
 
 def test_geotags_are_accurate_and_timing_error_is_negligible(result: dict[str, Any]) -> None:

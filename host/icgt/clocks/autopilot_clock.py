@@ -27,6 +27,7 @@ import math
 from collections import deque
 from dataclasses import asdict, dataclass
 from enum import Enum
+from typing import Protocol
 
 from icgt.clocks.device_clock import ClockNotSyncedError, ExchangeStatus, _TwoWayClock, _TwoWayLine
 
@@ -127,6 +128,17 @@ class AutopilotClockFilter(_TwoWayClock):
         return self._slow if self.settled else self._fast
 
 
+class AutopilotMapping(Protocol):
+    """What the UTC mapper needs of an autopilot clock mapping (AutopilotClockFilter, AutopilotTimeMap)."""
+
+    @property
+    def resets(self) -> int: ...
+    @property
+    def synced(self) -> bool: ...
+    def host_to_autopilot_us(self, host_ns: int) -> float: ...
+    def uncertainty_ns(self, boot_us: float) -> int: ...
+
+
 class UtcSource(Enum):
     """Where a UTC value came from, best first."""
 
@@ -187,7 +199,7 @@ class UtcMapper:
 
     def __init__(
         self,
-        autopilot: AutopilotClockFilter,
+        autopilot: AutopilotMapping,
         *,
         max_samples: int = 120,
         autopilot_utc_allowance_us: float = 1000.0,

@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
-from icgt.clocks.autopilot_clock import AutopilotClockFilter, UtcMapper
+from icgt.clocks.autopilot_clock import UtcMapper
+from icgt.clocks.autopilot_time import AutopilotTimeMap
 from icgt.clocks.device_clock import ClockNotSyncedError, DeviceClockFilter, PpsUtcMapper
 
 
 class AutopilotClockView:
-    """Host -> autopilot boot time, or None before the first TIMESYNC reply (instead of an exception)."""
+    """Host -> autopilot boot time, or None before any mapping exists (instead of an exception)."""
 
-    def __init__(self, f: AutopilotClockFilter) -> None:
+    def __init__(self, f: AutopilotTimeMap) -> None:
         self._f = f
 
     def host_to_autopilot_us(self, host_ns: int) -> float | None:
@@ -17,6 +18,16 @@ class AutopilotClockView:
             return None
         try:
             return self._f.host_to_autopilot_us(host_ns)
+        except ClockNotSyncedError:
+            return None
+
+    def method(self) -> str:
+        """Which mapping answers now: timesync, arrival or none."""
+        return self._f.method().value
+
+    def uncertainty_us(self, boot_us: float) -> float | None:
+        try:
+            return self._f.uncertainty_ns(boot_us) / 1000.0
         except ClockNotSyncedError:
             return None
 

@@ -20,12 +20,11 @@ import numpy as np
 
 from icgt.errors import IcgtError
 from icgt.geodesy import LocalFrame, q_from_euler_zyx, q_multiply, q_rotate, q_slerp, q_to_euler_zyx
+from icgt.geotag.position import PositionRules, estimate_position
 from icgt.geotag.record import FrameFlag, FrameRecord, PositionSource
 from icgt.mavlink.telemetry import (
     AttitudeSample,
-    FusedPositionSample,
     GpsSample,
-    LocalPositionSample,
     TelemetryBuffer,
     TelemetryStore,
 )
@@ -44,9 +43,11 @@ class DeviceClock(Protocol):
 
 
 class AutopilotClock(Protocol):
-    """Host CLOCK_MONOTONIC [ns] -> autopilot boot clock [us]."""
+    """Host CLOCK_MONOTONIC [ns] -> autopilot boot clock [us], the method that mapped it and its bound."""
 
     def host_to_autopilot_us(self, host_ns: int) -> float | None: ...
+    def method(self) -> str: ...
+    def uncertainty_us(self, boot_us: float) -> float | None: ...
 
 
 class UtcSource(Protocol):
@@ -71,7 +72,11 @@ class GeotagConfig:
     range_min_m: float = 0.5
     range_max_m: float = 40.0
     range_stale_ms: float = 50.0
-    stale_pose_ms: float = 100.0
+    stale_pose_ms: float = 100.0  # kept for old config files; the position bound below decides now
+    max_position_error_m: float = 0.10  # a larger bound on the position error flags the frame stale_pose
+    max_gps_gap_s: float = 1.5  # GPS samples farther apart are not interpolated (the local position fills)
+    max_accel_m_s2: float = 3.0  # acceleration the telemetry may not show, for the position bound
+    local_drift_m_per_s: float = 0.05  # drift allowance of the autopilot's local frame since the GPS anchor
     max_wait_ms: float = 500.0
     max_clock_uncertainty_us: float = 1000.0  # a worse device->host mapping bound flags the frame
     blur_limit_px: float = 1.0
@@ -137,6 +142,7 @@ class Geotagger:
         self._cfg = config
         self._emit = emit
         self._q_cam_body = camera_to_body_quaternion(config)
+        self._rules = PositionRules(config.max_gps_gap_s, config.max_accel_m_s2, config.local_drift_m_per_s)
         self._imu: TelemetryBuffer[DeviceSample] = TelemetryBuffer(512)
         self._range: TelemetryBuffer[DeviceSample] = TelemetryBuffer(2048)
         self._pending: deque[_Pending] = deque()
@@ -230,6 +236,8 @@ class Geotagger:
         if utc is None:
             flags.append(FrameFlag.NO_UTC.value)
         mid_boot = self._ap.host_to_autopilot_us(mid_host_ns)
+        ap_method = self._ap.method() if mid_boot is not None else "none"
+        ap_unc = self._ap.uncertainty_us(mid_boot) if mid_boot is not None else None
 
         pos = self._position(mid_boot, flags)
         att = self._attitude(mid_boot, flags)
@@ -295,6 +303,7 @@ class Geotagger:
             fix_type=gps.fix_type if gps is not None else 0,
             pose_gap_before_ms=pos[3] if pos else math.inf,
             pose_gap_after_ms=pos[4] if pos else math.inf,
+            position_error_bound_m=pos[5] if pos else None,
             mid_utc_us=utc[0] if utc else None,
             mid_utc_uncertainty_us=utc[1] if utc else None,
             lat_deg=lat,
@@ -337,91 +346,44 @@ class Geotagger:
             scale_mm_per_px=scale,
             incidence_deg=incidence,
             blur_px=blur,
+            autopilot_clock=ap_method,
+            autopilot_clock_uncertainty_us=ap_unc,
             emitted_host_ns=now_host_ns,
         )
 
     def _position(
         self, mid_boot: float | None, flags: list[str]
-    ) -> tuple[np.ndarray, PositionSource, GpsSample | None, float, float] | None:
-        """(ENU of the autopilot at mid, source, GPS sample, gap before [ms], gap after [ms])."""
+    ) -> tuple[np.ndarray, PositionSource, GpsSample | None, float, float, float] | None:
+        """(ENU of the autopilot at mid, source, GPS sample, gap before [ms], gap after [ms], bound [m])."""
         if mid_boot is None:
             flags.append(FrameFlag.NO_FIX.value)
             return None
-        t = int(mid_boot)
-        before, after = self._tm.fused.bracket(t)
-        gps, _ = self._tm.gps.bracket(t)
-        usable = before is not None and before.usable and before.lat_deg is not None
-        fresh = usable and before is not None and (mid_boot - before.boot_us) / 1000.0 <= self._cfg.stale_pose_ms
-        if not fresh:
-            # No current fix (GPS denied under a deck, or the fused estimate stopped): the
-            # autopilot's local position, if it has one, beats holding an old fix.
-            vio = self._local_position(mid_boot, flags)
-            if vio is not None:
-                return vio[0], PositionSource.VIO, gps, vio[1], vio[2]
-        if not usable or before is None:
+        if self._frame is None:
+            first = next((s for s in self._tm.fused.samples() if s.usable and s.lat_deg is not None), None)
+            if first is None:
+                flags.append(FrameFlag.NO_FIX.value)
+                return None
+            assert first.lat_deg is not None and first.lon_deg is not None and first.alt_msl_m is not None
+            self.origin = (first.lat_deg, first.lon_deg, first.alt_msl_m)
+            self._frame = LocalFrame(*self.origin)
+        est = estimate_position(self._tm, self._frame, mid_boot, self._rules)
+        if est is None:
             flags.append(FrameFlag.NO_FIX.value)
             return None
-        if self._frame is None:
-            assert before.lat_deg is not None and before.lon_deg is not None and before.alt_msl_m is not None
-            self.origin = (before.lat_deg, before.lon_deg, before.alt_msl_m)
-            self._frame = LocalFrame(*self.origin)
-        a = self._enu(before)
-        gap_before = (mid_boot - before.boot_us) / 1000.0
-        if after is None or not after.usable:
+        if est.extrapolated:
             flags.append(FrameFlag.POSE_EXTRAPOLATED.value)
-            enu, gap_after = a, math.inf
-        else:
-            b = self._enu(after)
-            span = after.boot_us - before.boot_us
-            f = 0.0 if span <= 0 else (mid_boot - before.boot_us) / span
-            enu = a + (b - a) * f
-            gap_after = (after.boot_us - mid_boot) / 1000.0
-        if max(gap_before, gap_after) > self._cfg.stale_pose_ms:
+        if est.bound_m > self._cfg.max_position_error_m:
             flags.append(FrameFlag.STALE_POSE.value)
-        source = PositionSource.GPS_3D
-        if gps is not None and gps.fix_type == 6:
+        gps = est.gps
+        if est.rule == "local":
+            source = PositionSource.VIO
+        elif gps is not None and gps.fix_type == 6:
             source = PositionSource.RTK_FIXED
         elif gps is not None and gps.fix_type == 5:
             source = PositionSource.RTK_FLOAT
-        return enu, source, gps, gap_before, gap_after
-
-    def _local_position(self, mid_boot: float, flags: list[str]) -> tuple[np.ndarray, float, float] | None:
-        """GPS denied: the autopilot's local position (VIO/SLAM), placed in ENU by the last moment
-        both a usable fix and a local position were known (the offset between the two frames)."""
-        lb, la = self._tm.local_position.bracket(int(mid_boot))
-        if lb is None or self._frame is None:
-            return None
-        history = [s for s in self._tm.fused.between(int(mid_boot) - 600_000_000, int(mid_boot)) if s.usable]
-        if not history:
-            return None
-        anchor = history[-1]
-        ab, aa = self._tm.local_position.bracket(anchor.boot_us)
-        at_anchor = ab or aa
-        if at_anchor is None:
-            return None
-
-        def enu_of(s: LocalPositionSample) -> np.ndarray:
-            return np.array([s.y_m, s.x_m, -s.z_m])  # local NED -> ENU axes
-
-        offset = self._enu(anchor) - enu_of(at_anchor)
-        a = enu_of(lb)
-        if la is None or la.boot_us == lb.boot_us:
-            enu, gap_after = a, 0.0 if la is not None else math.inf
         else:
-            f = (mid_boot - lb.boot_us) / (la.boot_us - lb.boot_us)
-            enu = a + (enu_of(la) - a) * f
-            gap_after = (la.boot_us - mid_boot) / 1000.0
-        if la is None:
-            flags.append(FrameFlag.POSE_EXTRAPOLATED.value)
-        gap_before = (mid_boot - lb.boot_us) / 1000.0
-        if max(gap_before, gap_after) > self._cfg.stale_pose_ms:
-            flags.append(FrameFlag.STALE_POSE.value)
-        return offset + enu, gap_before, gap_after
-
-    def _enu(self, s: FusedPositionSample) -> np.ndarray:
-        assert self._frame is not None and s.lat_deg is not None and s.lon_deg is not None
-        assert s.alt_msl_m is not None
-        return np.asarray(self._frame.geodetic_to_enu(s.lat_deg, s.lon_deg, s.alt_msl_m), dtype=float)
+            source = PositionSource.GPS_3D
+        return est.enu, source, gps, est.gap_before_ms, est.gap_after_ms, est.bound_m
 
     def _attitude(self, mid_boot: float | None, flags: list[str]) -> tuple[np.ndarray] | None:
         if mid_boot is None:

@@ -21,7 +21,7 @@ class PositionSource(enum.StrEnum):
     RTK_FIXED = "rtk_fixed"
     RTK_FLOAT = "rtk_float"
     GPS_3D = "gps_3d"  # the autopilot's fused estimate while GPS has a 3D fix
-    VIO = "vio"  # local position only (GPS denied): ENU from the autopilot's local frame
+    VIO = "vio"  # the autopilot's local position moved from the last GPS fix (GPS denied, or a gap)
     NONE = "none"
 
 
@@ -110,7 +110,16 @@ class FrameRecord:
     scale_mm_per_px: Annotated[float | None, Doc("ground sample distance at the image centre", unit="mm/px")] = None
     incidence_deg: Annotated[float | None, Doc("angle between optical axis and surface normal", unit="deg")] = None
     blur_px: Annotated[float | None, Doc("predicted motion blur (rotation and translation)", unit="px")] = None
+    position_error_bound_m: Annotated[
+        float | None, Doc("bound on the position error from interpolation / local-frame drift", unit="m")
+    ] = None
     # --- provenance
+    autopilot_clock: Annotated[
+        str, Doc("how mid-exposure was put on the autopilot's clock: timesync, arrival (one-way) or none")
+    ] = "none"
+    autopilot_clock_uncertainty_us: Annotated[
+        float | None, Doc("bound on the host->autopilot clock mapping error at mid", unit="us")
+    ] = None
     emitted_host_ns: Annotated[
         int | None, Doc("host CLOCK_MONOTONIC when the synchroniser emitted the frame (its poll)", unit="ns")
     ] = None

@@ -53,8 +53,18 @@ _UINT16_MAX = 0xFFFF
 _UINT8_MAX = 0xFF
 
 TELEMETRY_TYPES = frozenset(
-    {"GPS_RAW_INT", "GLOBAL_POSITION_INT", "ATTITUDE", "ATTITUDE_QUATERNION", "LOCAL_POSITION_NED", "SYSTEM_TIME"}
+    {
+        "GPS_RAW_INT",
+        "GLOBAL_POSITION_INT",
+        "ATTITUDE",
+        "ATTITUDE_QUATERNION",
+        "LOCAL_POSITION_NED",
+        "SYSTEM_TIME",
+        "GPS_GLOBAL_ORIGIN",
+    }
 )
+LOCAL_RESET_SPEED_MARGIN_MPS = 5.0  # a local position moving faster than its own velocity by this ...
+LOCAL_RESET_MIN_JUMP_M = 2.0  # ... and by at least this far between two samples is an origin reset
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -131,6 +141,7 @@ class LocalPositionSample:
     vx_mps: float
     vy_mps: float
     vz_mps: float
+    epoch: int = 0  # counts the local frame's origin resets: positions of different epochs do not compare
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -453,7 +464,10 @@ class TelemetryStore:
             "fused_unusable": 0,
             "system_time_without_utc": 0,
             "other_source": 0,
+            "local_origin_resets": 0,
         }
+        self._local_epoch = 0
+        self._origin: tuple[int, int, int] | None = None
 
     def attach(self, link: MavlinkLink) -> Subscription:
         return link.subscribe(self.ingest, TELEMETRY_TYPES)
@@ -473,6 +487,16 @@ class TelemetryStore:
     def _gps_fix_ok(self, boot_us: int) -> bool:
         gps = self._last_gps
         return gps is not None and gps.fix_type >= GPS_FIX_3D and abs(boot_us - gps.boot_us) <= self._gps_fix_max_age_us
+
+    def _local_jumped(self, s: LocalPositionSample) -> bool:
+        """A local position farther from the previous one than its velocity allows: the EKF reset its origin."""
+        last = self.local_position.latest()
+        if last is None or s.boot_us <= last.boot_us:
+            return False
+        dt = (s.boot_us - last.boot_us) / 1e6
+        moved = math.dist((s.x_m, s.y_m, s.z_m), (last.x_m, last.y_m, last.z_m))
+        speed = max(math.hypot(s.vx_mps, s.vy_mps, s.vz_mps), math.hypot(last.vx_mps, last.vy_mps, last.vz_mps))
+        return moved > max(LOCAL_RESET_MIN_JUMP_M, (speed + LOCAL_RESET_SPEED_MARGIN_MPS) * dt)
 
     def ingest(self, rec: Received) -> Sample | None:
         """Convert and store one message; returns the sample (None if not telemetry or not stored)."""
@@ -510,8 +534,19 @@ class TelemetryStore:
             if local is None:
                 self._count("invalid")
                 return None
+            if self._local_jumped(local):
+                self._local_epoch += 1
+                self._count("local_origin_resets")
+            local = dataclasses.replace(local, epoch=self._local_epoch)
             self.local_position.push(local)
             sample = local
+        elif mtype == "GPS_GLOBAL_ORIGIN":
+            origin = (int(msg.latitude), int(msg.longitude), int(msg.altitude))
+            if self._origin is not None and origin != self._origin:
+                self._local_epoch += 1  # the EKF moved its origin: local positions restart from it
+                self._count("local_origin_resets")
+            self._origin = origin
+            return None
         elif mtype == "SYSTEM_TIME":
             st = system_time_sample(msg, rx)
             if st.unix_us is None:

@@ -576,6 +576,8 @@ class SimAutopilot:
             return
         mtype = msg.get_type()
         if mtype == "TIMESYNC" and msg.tc1 == 0:
+            if not self.scenario.autopilot.answer_timesync:
+                return
             link.send(self._codec.timesync_encode(self._ap_now_us() * 1000, msg.ts1))
         elif mtype == "COMMAND_LONG":
             self._on_command(link, msg, addressed=tgt_comp == COMPONENT_ID)
@@ -588,6 +590,8 @@ class SimAutopilot:
     def _on_command(self, link: _Link, msg: Any, *, addressed: bool) -> None:
         cmd = int(msg.command)
         if cmd == mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL:
+            if not self.scenario.autopilot.honour_message_interval:
+                return  # no COMMAND_ACK, the default rates stay
             self._ack(link, msg, self._set_interval(int(msg.param1), float(msg.param2)))
         elif cmd == mavlink2.MAV_CMD_GET_MESSAGE_INTERVAL:
             mid = int(msg.param1)

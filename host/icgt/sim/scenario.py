@@ -276,6 +276,10 @@ class Autopilot:
     latency_jitter_ms: float = 0.5
     mavlink1_messages: tuple[str, ...] = ()
     """Upper-case message names sent as MAVLink 1 frames (real logs mix both)."""
+    answer_timesync: bool = True
+    """False: TIMESYNC requests are never answered (a radio or router that drops them, older firmware)."""
+    honour_message_interval: bool = True
+    """False: SET_MESSAGE_INTERVAL gets no COMMAND_ACK and the default rates stay (seen behind some routers)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -638,6 +642,8 @@ def _read_autopilot(r: _Reader) -> Autopilot:
         latency_ms=r.number("latency_ms", 2.0, min_value=0.0, max_value=1000.0),
         latency_jitter_ms=r.number("latency_jitter_ms", 0.5, min_value=0.0, max_value=1000.0),
         mavlink1_messages=tuple(n.upper() for n in names),
+        answer_timesync=r.boolean("answer_timesync", True),
+        honour_message_interval=r.boolean("honour_message_interval", True),
     )
     r.finish()
     return ap

@@ -32,11 +32,13 @@ from dataclasses import dataclass
 from typing import Any
 
 from icgt.clocks.autopilot_clock import AutopilotClockFilter, UtcMapper
+from icgt.clocks.autopilot_time import AutopilotTimeMap
 from icgt.clocks.device_clock import DeviceClockFilter, ExchangeStatus, PpsUtcMapper
+from icgt.clocks.one_way import OneWayClock
 from icgt.geotag.clock_views import AutopilotClockView, UtcView, add_pps_edge
 from icgt.geotag.geotagger import GeotagConfig, Geotagger
 from icgt.geotag.record import FrameRecord
-from icgt.mavlink.autopilot_rules import AutopilotPresence, Freshness
+from icgt.mavlink.autopilot_rules import BOOT_CLOCK_TYPES, AutopilotPresence, Freshness
 from icgt.mavlink.link import Received
 from icgt.mavlink.telemetry import TelemetryStore
 from icgt.protocol.messages import Exposure, Hello, Imu, Message, Pps, Range, Status
@@ -58,6 +60,9 @@ class SyncConfig:
     autopilot_component: int | None = None  # None: the first HEARTBEAT of a flight controller of that system
     autopilot_timeout_s: float = 3.0  # silence after which the autopilot counts as gone (and back when heard)
     timesync_timeout_s: float = 1.0  # an unanswered TIMESYNC request is forgotten after this
+    # Without TIMESYNC answers the autopilot clock comes from message arrival times; this bounds the
+    # link's minimum delay, which one-way timing cannot see (companion UART/UDP: < 1 ms; radios: more).
+    one_way_min_delay_allowance_ms: float = 2.0
 
     def to_json(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -98,7 +103,9 @@ class Synchroniser:
         self.config = cfg = config or SyncConfig()
         self.device_clock = device_clock or DeviceClockFilter(slow_interval_s=0.1)
         self.autopilot_clock = autopilot_clock or AutopilotClockFilter()
-        self.utc = UtcMapper(self.autopilot_clock)
+        self.autopilot_one_way = OneWayClock(min_delay_allowance_ms=cfg.one_way_min_delay_allowance_ms)
+        self.autopilot_time = AutopilotTimeMap(self.autopilot_clock, self.autopilot_one_way)
+        self.utc = UtcMapper(self.autopilot_time)
         self.pps = PpsUtcMapper()
         self.telemetry = TelemetryStore(autopilot_system=cfg.autopilot_system)
         self.autopilot = AutopilotPresence(
@@ -109,7 +116,7 @@ class Synchroniser:
         self.geotagger = Geotagger(
             self.telemetry,
             self.device_clock,
-            AutopilotClockView(self.autopilot_clock),
+            AutopilotClockView(self.autopilot_time),
             UtcView(self.pps, self.utc),
             cfg.geotag,
             self._ready.append,
@@ -171,7 +178,12 @@ class Synchroniser:
             self.timesync.forget()
             if fresh is Freshness.REBOOTED:
                 self.counts["autopilot_reboots"] += 1
+                self.autopilot_one_way.reset()
             self._event(fresh.value, rx_ns, self.autopilot.detail)
+        if fresh is not None and mtype in BOOT_CLOCK_TYPES:
+            boot_ms = getattr(msg, "time_boot_ms", None)
+            if isinstance(boot_ms, int):
+                self.autopilot_one_way.add(boot_ms * 1000.0 + 500.0, rx_ns)  # centre of the truncated ms
         if mtype == "TIMESYNC":
             if fresh is None:
                 return None  # not from the autopilot we follow

@@ -393,6 +393,7 @@ def test_gimbal_stabilised_camera_turns_with_yaw_only():
     assert (f.roll_deg, f.pitch_deg, f.yaw_deg) == (pytest.approx(20.0), pytest.approx(10.0), pytest.approx(90.0))
     right, down, axis = cam_axes(f)
     np.testing.assert_allclose(axis, E, atol=1e-6)
+    np.testing.assert_allclose(right, -N, atol=1e-6)
     np.testing.assert_allclose(down, D, atol=1e-6)
 
 

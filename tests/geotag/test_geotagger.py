@@ -77,6 +77,12 @@ class FakeAutopilotClock:
     def host_to_autopilot_us(self, host_ns: int) -> float | None:
         return host_ns / 1000 - HOST_TO_BOOT_US if self.synced else None
 
+    def method(self) -> str:
+        return "timesync" if self.synced else "none"
+
+    def uncertainty_us(self, boot_us: float) -> float | None:
+        return 300.0 if self.synced else None
+
 
 class FakeUtc:
     def __init__(self, *, available: bool = True) -> None:
@@ -255,30 +261,50 @@ def test_device_exposure_flags_become_frame_flags():
 
 
 # --------------------------------------------------------------------------- position
-def test_position_is_interpolated_linearly_at_mid_exposure():
+def test_position_is_interpolated_at_mid_exposure():
+    """Two samples moving at the velocity they report: the cubic through them is the straight line."""
     rig = Rig()
     rig.gps(12_990)
-    rig.pose(13_000)
-    rig.pose(13_100, dlat_e7=900, dlon_e7=1_200, dalt_mm=2_000)  # ~10 m north, ~9 m east, 2 m up
+    b = LocalFrame(*ORIGIN).geodetic_to_enu((LAT_E7 + 900) * 1e-7, (LON_E7 + 1_200) * 1e-7, (ALT_MM + 2_000) * 1e-3)
+    v_ned = (b[1] / 0.1, b[0] / 0.1, -b[2] / 0.1)  # ~10 m north, ~9 m east, 2 m up in 100 ms
+    rig.pose(13_000, v_ned=v_ned)
+    rig.pose(13_100, dlat_e7=900, dlon_e7=1_200, dalt_mm=2_000, v_ned=v_ned)
     rig.expose()
     f = rig.one()
     frac = (MID_BOOT_MS - 13_000) / 100  # 0.45
-    b = LocalFrame(*ORIGIN).geodetic_to_enu((LAT_E7 + 900) * 1e-7, (LON_E7 + 1_200) * 1e-7, (ALT_MM + 2_000) * 1e-3)
-    np.testing.assert_allclose(enu(f), frac * b, atol=1e-6)
+    np.testing.assert_allclose(enu(f), frac * b, atol=1e-3)  # velocities are whole cm/s
     # Independent of LocalFrame: metres per degree on the WGS84 ellipsoid at 47.4 deg N.
     lat = math.radians(ORIGIN[0])
     m_per_deg_lat = 111_132.954 - 559.822 * math.cos(2 * lat) + 1.175 * math.cos(4 * lat)
     m_per_deg_lon = math.pi / 180 * 6_378_137.0 * math.cos(lat) / math.sqrt(1 - 0.00669438 * math.sin(lat) ** 2)
-    assert f.north_m == pytest.approx(frac * 900e-7 * m_per_deg_lat, abs=1e-3)
-    assert f.east_m == pytest.approx(frac * 1_200e-7 * m_per_deg_lon, abs=1e-3)
-    assert f.up_m == pytest.approx(frac * 2.0, abs=1e-3)
-    assert f.lat_deg == pytest.approx(ORIGIN[0] + frac * 900e-7, abs=1e-10)
-    assert f.lon_deg == pytest.approx(ORIGIN[1] + frac * 1_200e-7, abs=1e-10)
-    assert f.alt_msl_m == pytest.approx(ORIGIN[2] + frac * 2.0, abs=1e-4)
+    assert f.north_m == pytest.approx(frac * 900e-7 * m_per_deg_lat, abs=2e-3)
+    assert f.east_m == pytest.approx(frac * 1_200e-7 * m_per_deg_lon, abs=2e-3)
+    assert f.up_m == pytest.approx(frac * 2.0, abs=2e-3)
+    assert f.lat_deg == pytest.approx(ORIGIN[0] + frac * 900e-7, abs=1e-8)
+    assert f.lon_deg == pytest.approx(ORIGIN[1] + frac * 1_200e-7, abs=1e-8)
+    assert f.alt_msl_m == pytest.approx(ORIGIN[2] + frac * 2.0, abs=2e-3)
     assert f.pose_gap_before_ms == pytest.approx(45.0)
     assert f.pose_gap_after_ms == pytest.approx(55.0)
     assert (f.position_source, f.fix_type) == ("gps_3d", 3)
     assert (f.h_acc_m, f.v_acc_m, f.satellites) == (pytest.approx(0.9), pytest.approx(1.5), 14)
+    assert f.position_error_bound_m == pytest.approx(3.0 * 0.1**2 / 32, abs=1e-3)
+
+
+def test_position_follows_the_samples_velocities_between_them():
+    """Starting at rest and arriving at 2 m/s over 1 s: the cubic Hermite of the two ends, not the chord."""
+    rig = Rig(GeotagConfig(origin=ORIGIN))
+    rig.gps(12_000)
+    rig.pose(12_550)
+    end = LocalFrame(*ORIGIN).geodetic_to_enu((LAT_E7 + 90) * 1e-7, *ORIGIN[1:])  # ~1 m north
+    rig.pose(13_550, dlat_e7=90, v_ned=(2.0, 0.0, 0.0))
+    rig.expose()
+    f = rig.one()
+    x = (MID_BOOT_MS - 12_550) / 1000.0  # 0.495 of the way
+    h01, h11 = -2 * x**3 + 3 * x**2, x**3 - x**2
+    assert f.north_m == pytest.approx(h01 * end[1] + h11 * 1.0 * 2.0, abs=1e-3)
+    assert f.north_m != pytest.approx(x * end[1], abs=0.05)
+    assert f.position_error_bound_m == pytest.approx(2.0 * 1.0 / 8 + 3.0 / 32, abs=1e-3)
+    assert FrameFlag.STALE_POSE.value in f.flags  # bound 0.34 m above the 0.10 m default
 
 
 def test_origin_defaults_to_the_first_fix():
@@ -401,58 +427,72 @@ def test_gimbal_stabilised_camera_turns_with_yaw_only():
 def test_frame_waits_for_the_later_position_and_attitude_samples():
     rig = Rig()
     rig.gps(12_990)
-    rig.pose(13_000)
+    north = LocalFrame(*ORIGIN).geodetic_to_enu((LAT_E7 + 900) * 1e-7, *ORIGIN[1:])[1]
+    rig.pose(13_000, v_ned=(north / 0.1, 0, 0))
     rig.expose()
     later = host_ns(MID_US) + 200_000_000  # 200 ms after mid: within max_wait (500 ms)
     assert rig.poll(later) == [] and rig.gt.pending == 1
-    rig.position(13_100, dlat_e7=900)
+    rig.position(13_100, dlat_e7=900, v_ned=(north / 0.1, 0, 0))
     assert rig.poll(later) == [], "emitted before the later attitude sample arrived"
     rig.attitude(13_100)
     (f,) = rig.poll(later + 1)
     assert FrameFlag.POSE_EXTRAPOLATED.value not in f.flags
     assert f.pose_gap_after_ms == pytest.approx(55.0)
-    assert f.north_m == pytest.approx(0.45 * LocalFrame(*ORIGIN).geodetic_to_enu((LAT_E7 + 900) * 1e-7, *ORIGIN[1:])[1])
+    assert f.north_m == pytest.approx(0.45 * north, abs=1e-3)
     assert f.emitted_host_ns == later + 1
     assert rig.gt.pending == 0
 
 
-def test_frame_is_emitted_after_max_wait_held_from_the_earlier_sample_and_flagged():
+def test_frame_is_emitted_after_max_wait_moved_by_the_earlier_velocity_and_flagged():
     rig = Rig(GeotagConfig(origin=ORIGIN, max_wait_ms=500.0))
     rig.gps(12_990)
-    rig.pose(13_000, dlat_e7=300)
+    rig.pose(13_000, dlat_e7=300, v_ned=(0.0, 2.0, 0.0))
     rig.expose()
     mid = host_ns(MID_US)
     assert rig.poll(mid + 499_999_999) == []
     (f,) = rig.poll(mid + 500_000_000)
     assert FrameFlag.POSE_EXTRAPOLATED.value in f.flags
-    assert FrameFlag.STALE_POSE.value in f.flags  # nothing came after it
+    assert FrameFlag.STALE_POSE.value not in f.flags  # 45 ms of dead reckoning: bound 3 mm
+    assert f.position_error_bound_m == pytest.approx(3.0 * 0.045**2 / 2, rel=1e-6)
     assert f.pose_gap_before_ms == pytest.approx(45.0)
     assert f.pose_gap_after_ms == math.inf
-    held = LocalFrame(*ORIGIN).geodetic_to_enu((LAT_E7 + 300) * 1e-7, *ORIGIN[1:])
-    np.testing.assert_allclose(enu(f), held, atol=1e-6)
+    held = np.asarray(LocalFrame(*ORIGIN).geodetic_to_enu((LAT_E7 + 300) * 1e-7, *ORIGIN[1:]))
+    np.testing.assert_allclose(enu(f), held + np.array([2.0 * 0.045, 0.0, 0.0]), atol=1e-6)
     assert f.emitted_host_ns == mid + 500_000_000
 
 
+def test_long_dead_reckoning_is_flagged_stale():
+    rig = Rig(GeotagConfig(origin=ORIGIN, max_wait_ms=500.0))
+    rig.gps(12_400)
+    rig.pose(12_500)
+    rig.expose()
+    (f,) = rig.poll(host_ns(MID_US) + 500_000_000)
+    assert {FrameFlag.POSE_EXTRAPOLATED.value, FrameFlag.STALE_POSE.value} <= set(f.flags)
+    assert f.position_error_bound_m == pytest.approx(3.0 * 0.545**2 / 2, rel=1e-6)
+
+
 @pytest.mark.parametrize(
-    ("before_ms", "after_ms", "stale"),
+    ("before_ms", "after_ms", "dv_north", "stale", "extrapolated"),
     [
-        (13_000, 13_100, False),  # 45 / 55 ms
-        (12_945, 13_100, False),  # 100 ms before: at the limit
-        (12_940, 13_100, True),  # 105 ms before
-        (13_000, 13_150, True),  # 105 ms after
+        (13_000, 13_100, 0.0, False, False),  # bound 1 mm
+        (13_000, 13_100, 10.0, True, False),  # 10 m/s change of velocity in 100 ms: bound 0.13 m
+        (12_545, 13_545, 0.0, False, False),  # 1 s apart (a 1 Hz stream): bound 0.094 m
+        (12_445, 13_645, 0.0, True, False),  # 1.2 s: bound 0.135 m
+        (12_245, 13_845, 0.0, True, True),  # 1.6 s apart: beyond max_gps_gap_s, dead reckoning
     ],
 )
-def test_stale_pose_flag(before_ms, after_ms, stale):
-    rig = Rig(GeotagConfig(origin=ORIGIN, stale_pose_ms=100.0))
-    rig.gps(12_900)
+def test_stale_pose_flag_from_the_position_bound(before_ms, after_ms, dv_north, stale, extrapolated):
+    rig = Rig(GeotagConfig(origin=ORIGIN))
+    rig.gps(12_200)
     rig.pose(before_ms)
-    rig.pose(after_ms)
+    rig.pose(after_ms, v_ned=(dv_north, 0.0, 0.0))
     rig.expose()
-    f = rig.one()
-    assert (FrameFlag.STALE_POSE.value in f.flags) is stale
-    assert FrameFlag.POSE_EXTRAPOLATED.value not in f.flags
+    (f,) = rig.poll(host_ns(MID_US) + 600_000_000)
+    assert (FrameFlag.STALE_POSE.value in f.flags) is stale, f.position_error_bound_m
+    assert (FrameFlag.POSE_EXTRAPOLATED.value in f.flags) is extrapolated
     assert f.pose_gap_before_ms == pytest.approx(MID_BOOT_MS - before_ms)
-    assert f.pose_gap_after_ms == pytest.approx(after_ms - MID_BOOT_MS)
+    if not extrapolated:
+        assert f.pose_gap_after_ms == pytest.approx(after_ms - MID_BOOT_MS)
 
 
 @pytest.mark.parametrize("fix_type", [0, 1, 2])

@@ -271,12 +271,6 @@ def test_a_hello_with_a_smaller_device_time_resets_the_device_clock():
     assert sync.hello is not None and sync.hello.t_us == 250_000
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="bug: Synchroniser.on_device detects a device reboot only when HELLO.t_us is below the previous "
-    "HELLO's, not below the device time seen since (STATUS, EXPOSURE...): a device that said HELLO soon after "
-    "boot, ran an hour, rebooted and said HELLO a little later after its reboot keeps the old clock mapping",
-)
 def test_a_hello_earlier_than_the_device_time_already_seen_is_a_reboot():
     sync = Synchroniser()
     t = 100 * S
@@ -299,12 +293,6 @@ def test_telemetry_from_another_component_of_the_vehicle_is_not_taken():
     assert len(sync.telemetry.attitude) == 1
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="bug: Synchroniser.on_mavlink feeds every SYSTEM_TIME of the autopilot's system id to the UTC "
-    "mapper whatever its component: a companion computer's SYSTEM_TIME (MAVROS sends one) mixes another "
-    "boot clock into the autopilot's boot->UTC fit",
-)
 def test_system_time_from_a_companion_computer_does_not_feed_the_utc_mapping():
     sync = Synchroniser()
     t = 100 * S
@@ -313,11 +301,6 @@ def test_system_time_from_a_companion_computer_does_not_feed_the_utc_mapping():
     assert not sync.utc.autopilot_to_utc(3_000_000_000).valid
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="bug: the Synchroniser's TelemetryStore keeps its default autopilot_component=1 instead of the "
-    "configured or HEARTBEAT-learnt component, so an autopilot on another component has no telemetry",
-)
 def test_telemetry_follows_the_configured_autopilot_component():
     sync = Synchroniser(SyncConfig(autopilot_component=2))
     t = 100 * S
@@ -358,7 +341,8 @@ def test_poll_stamps_emitted_host_ns_and_emits_each_frame_once():
         sync.on_mavlink(
             wire(
                 AUTOPILOT,
-                lambda m, b=boot_ms, d=dlat: m.global_position_int_encode(b, lat + d, lon, alt, 0, 0, 0, 0, 0),
+                # moving north at the ~111 m/s the two samples imply [cm/s]
+                lambda m, b=boot_ms, d=dlat: m.global_position_int_encode(b, lat + d, lon, alt, 0, 11_120, 0, 0, 0),
             ),
             rx,
         )

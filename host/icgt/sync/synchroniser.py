@@ -107,7 +107,11 @@ class Synchroniser:
         self.autopilot_time = AutopilotTimeMap(self.autopilot_clock, self.autopilot_one_way)
         self.utc = UtcMapper(self.autopilot_time)
         self.pps = PpsUtcMapper()
-        self.telemetry = TelemetryStore(autopilot_system=cfg.autopilot_system)
+        # MAV_COMP_ID_AUTOPILOT1 until the autopilot's HEARTBEAT (or the configuration) names its component.
+        self._default_component = cfg.autopilot_component if cfg.autopilot_component is not None else 1
+        self.telemetry = TelemetryStore(
+            autopilot_system=cfg.autopilot_system, autopilot_component=self._default_component
+        )
         self.autopilot = AutopilotPresence(
             cfg.autopilot_system, cfg.autopilot_component, int(cfg.autopilot_timeout_s * 1e9)
         )
@@ -133,28 +137,36 @@ class Synchroniser:
             "frames": 0,
         }
         self._timesync_warned = False
+        self._device_t_us = 0  # the latest device time seen since the last HELLO
 
     # ------------------------------------------------------------------ inputs
     def on_device(self, msg: Message, rx_ns: int) -> None:
         """A device message as received (any type; those that carry nothing for the frames are kept as state)."""
         if isinstance(msg, Imu):
             self.geotagger.add_imu(msg)
+            self._device_t_us = max(self._device_t_us, msg.read_end_t_us)
         elif isinstance(msg, Range):
             self.geotagger.add_range(msg)
+            self._device_t_us = max(self._device_t_us, msg.acq_start_t_us)
         elif isinstance(msg, Exposure):
             self.counts["exposures"] += 1
             self.geotagger.add_exposure(msg, rx_ns)
+            self._device_t_us = max(self._device_t_us, msg.trigger_t_us, msg.feedback_start_t_us)
         elif isinstance(msg, Pps):
             add_pps_edge(self.pps, self.utc, self.device_clock, msg.t_us, msg.pps_count)
+            self._device_t_us = max(self._device_t_us, msg.t_us)
         elif isinstance(msg, Status):
             self.last_status = msg
+            self._device_t_us = max(self._device_t_us, msg.t_us)
         elif isinstance(msg, Hello):
-            if self.hello is not None and msg.t_us < self.hello.t_us:
-                # The device rebooted: its microsecond clock restarted, the old mapping means nothing.
+            if self.hello is not None and msg.t_us < self._device_t_us:
+                # Earlier than device time already seen: the device rebooted, its microsecond clock
+                # restarted and the old mapping means nothing.
                 self.device_clock.reset()
                 self.counts["device_reboots"] += 1
                 self._event("device_rebooted", rx_ns, f"HELLO at device time {msg.t_us} us: its clock restarted")
             self.hello = msg
+            self._device_t_us = msg.t_us
 
     def on_exchange(self, host_tx_ns: int, device_rx_us: int, device_tx_us: int, host_rx_ns: int) -> ExchangeStatus:
         """One device TIME_SYNC exchange (host send/receive [ns], device receive/transmit [us])."""
@@ -193,8 +205,9 @@ class Synchroniser:
             return reply
         if mtype == "HEARTBEAT":
             return None
+        self.telemetry.autopilot_component = self.autopilot.component or self._default_component
         self.telemetry.ingest(Received(msg, rx_ns))
-        if mtype == "SYSTEM_TIME" and int(msg.get_srcSystem()) == self.config.autopilot_system:
+        if mtype == "SYSTEM_TIME" and fresh is not None:  # the autopilot's own, not a companion's
             self.utc.add_system_time(int(msg.time_unix_usec), int(msg.time_boot_ms))
         return None
 

@@ -15,9 +15,9 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import queue
 import threading
 import time
+from collections import deque
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -92,6 +92,7 @@ class RecorderStatus:
 # Inputs from the reader threads to the worker, tagged by kind.
 _DEVICE, _EXCHANGE, _DEVICE_EVENT, _MAVLINK, _MAVLINK_EVENT, _TIMESYNC_SENT = range(6)
 _DRAIN_MAX = 2000  # inputs handled before the worker polls again (bounds frame latency under a flood)
+_WORK_PERIOD_S = 0.01  # the worker wakes this often; the readers never wake it (no switch per message)
 
 
 class Recorder:
@@ -103,7 +104,8 @@ class Recorder:
         self._mono_to_utc_ns = time.time_ns() - time.monotonic_ns()  # fixed: log times stay monotonic
         self.sync_config = SyncConfig(geotag=config.camera, autopilot_system=config.mavlink.system_id)
         self.sync = Synchroniser(self.sync_config)  # fed and polled by the worker thread only
-        self._inbox: queue.SimpleQueue[tuple[int, Any, int]] = queue.SimpleQueue()
+        # Filled by the reader threads (deque.append is atomic), emptied by the worker only.
+        self._inbox: deque[tuple[int, Any, int]] = deque()
         self.mcap: McapRecorder | None = None
         self.device: DeviceLink | None = None
         self.mavlink: MavlinkLink | None = None
@@ -157,9 +159,9 @@ class Recorder:
         )
         self.device = DeviceLink(
             cfg.device.url,
-            on_message=lambda received, rx_ns: self._inbox.put((_DEVICE, received, rx_ns)),
-            on_event=lambda event: self._inbox.put((_DEVICE_EVENT, event, event.host_ns)),
-            on_time_sync=lambda sample: self._inbox.put((_EXCHANGE, sample, sample.host_rx_ns)),
+            on_message=lambda received, rx_ns: self._inbox.append((_DEVICE, received, rx_ns)),
+            on_event=lambda event: self._inbox.append((_DEVICE_EVENT, event, event.host_ns)),
+            on_time_sync=lambda sample: self._inbox.append((_EXCHANGE, sample, sample.host_rx_ns)),
         )
         try:
             self.hello = self.device.start()
@@ -425,10 +427,10 @@ class Recorder:
         )
         self.mavlink = MavlinkLink(
             LinkConfig(url=cfg.url, system_id=cfg.system_id, stream_rates=rates),
-            on_event=lambda event: self._inbox.put((_MAVLINK_EVENT, event, event.host_ns)),
-            on_timesync_sent=lambda tx_ns: self._inbox.put((_TIMESYNC_SENT, tx_ns, tx_ns)),
+            on_event=lambda event: self._inbox.append((_MAVLINK_EVENT, event, event.host_ns)),
+            on_timesync_sent=lambda tx_ns: self._inbox.append((_TIMESYNC_SENT, tx_ns, tx_ns)),
         )
-        self.mavlink.subscribe(lambda rec: self._inbox.put((_MAVLINK, rec, rec.rx_ns)))
+        self.mavlink.subscribe(lambda rec: self._inbox.append((_MAVLINK, rec, rec.rx_ns)))
         self.mavlink.start()
         c = self.config.camera
         info = CameraInfo(
@@ -522,28 +524,19 @@ class Recorder:
 
     # ------------------------------------------------------------------ worker
     def _work(self) -> None:
-        while not self._stop.is_set():
-            try:
-                item = self._inbox.get(timeout=0.02)
-            except queue.Empty:
-                item = None
+        while not self._stop.wait(_WORK_PERIOD_S):
             try:
                 with self._worker_lock:
-                    if item is not None:
-                        self._handle(item)
-                        self._drain(limit=_DRAIN_MAX)
+                    self._drain(limit=_DRAIN_MAX)
                     self._work_once()
             except Exception:  # the worker must outlive any bug: frames keep being emitted
                 log.exception("recorder worker error (recording continues)")
 
     def _drain(self, limit: int | None) -> None:
+        inbox = self._inbox
         n = 0
-        while limit is None or n < limit:
-            try:
-                item = self._inbox.get_nowait()
-            except queue.Empty:
-                return
-            self._handle(item)
+        while inbox and (limit is None or n < limit):
+            self._handle(inbox.popleft())
             n += 1
 
     def _handle(self, item: tuple[int, Any, int]) -> None:

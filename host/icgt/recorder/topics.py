@@ -90,14 +90,22 @@ def device_schema(cls: type[Message]) -> dict[str, Any]:
     }
 
 
+_FIELD_NAMES: dict[type, tuple[str, ...]] = {}
+
+
 def device_payload(msg: Message, seq: int, frame_flags: int, host_rx_ns: int) -> dict[str, Any]:
     """A device message as a JSON object; non-finite floats are left out (JSON has none)."""
+    cls = type(msg)
+    names = _FIELD_NAMES.get(cls)
+    if names is None:
+        names = _FIELD_NAMES[cls] = tuple(f.name for f in fields(msg))  # type: ignore[arg-type]
     out: dict[str, Any] = {"seq": seq, "frame_flags": frame_flags, "host_rx_ns": host_rx_ns}
-    for f in fields(msg):  # type: ignore[arg-type]
-        v = getattr(msg, f.name)
-        if isinstance(v, float) and not math.isfinite(v):
+    isfinite = math.isfinite
+    for name in names:
+        v = getattr(msg, name)
+        if v.__class__ is float and not isfinite(v):
             continue
-        out[f.name] = v
+        out[name] = v
     return out
 
 

@@ -38,6 +38,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import msgspec
+
 from icgt.errors import IcgtError
 
 JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
@@ -103,17 +105,17 @@ def json_encoder(cls: type) -> Encoder:
     if cached is None:
         json_schema(cls)  # refuse a type the schema cannot describe before its first message, not at it
         to_plain = _dataclass_converter(cls)
-        dumps = json.JSONEncoder(separators=(",", ":"), allow_nan=False, default=_numpy_scalar).encode
+        dumps = msgspec.json.Encoder(enc_hook=_numpy_scalar).encode
 
         def cached(value: Any) -> bytes:
-            return dumps(to_plain(value)).encode()
+            return dumps(to_plain(value))
 
         _ENCODERS[cls] = cached  # a race builds it twice, harmlessly
     return cached
 
 
 def _numpy_scalar(value: Any) -> Any:
-    """json's fallback for numbers that are not int or float subclasses (numpy.int64, numpy.float32...)."""
+    """The encoder's fallback for numbers that are not int or float subclasses (numpy.int64, numpy.float32...)."""
     if hasattr(value, "__index__"):
         return int(value.__index__())
     if hasattr(value, "__float__"):
@@ -271,15 +273,26 @@ def _is_value(value: Any) -> bool:
     return value is not None
 
 
+def _finite_list(values: Any) -> list[Any]:
+    out = list(values)
+    for x in out:
+        if not math.isfinite(x):
+            raise ValueError(f"non-finite float {x!r} in an array (JSON has none)")
+    return out
+
+
 def _is_finite(value: Any) -> bool:
     return value is not None and math.isfinite(value)
 
 
 def _converter(hint: Any) -> _Convert | None:
-    """The conversion a value of type `hint` needs before json.dumps, or None when it needs none."""
+    """The conversion a value of type `hint` needs before JSON encoding, or None when it needs none."""
     origin = typing.get_origin(hint)
     if origin in (list, tuple):
-        item = _converter(typing.get_args(hint)[0])
+        inner = typing.get_args(hint)[0]
+        if inner is float:
+            return _finite_list
+        item = _converter(inner)
         return list if item is None else (lambda v: [item(x) for x in v])
     if isinstance(hint, type):
         if dataclasses.is_dataclass(hint):
@@ -294,7 +307,7 @@ def _converter(hint: Any) -> _Convert | None:
 def _dataclass_converter(cls: type) -> _Convert:
     plan: list[tuple[str, _Convert | None, _Keep | None]] = []
     for f in _fields(cls):
-        keep = _is_finite if f.hint is float else (_is_value if f.optional else None)
+        keep = _is_finite if f.hint is float else (_is_value if f.optional else None)  # float | None: finite too
         plan.append((f.name, _converter(f.hint), keep))
 
     def to_plain(value: Any) -> dict[str, Any]:

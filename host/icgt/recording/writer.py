@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import IO, Any, Literal
 
 import lz4.frame  # type: ignore[import-untyped]
+import msgspec
 import zstandard
 from foxglove_schemas_protobuf.Log_pb2 import Log
 from google.protobuf.message import Message as ProtobufMessage
@@ -830,10 +831,16 @@ def _serialize_protobuf(message: Any) -> bytes:
     return data
 
 
+# msgspec's encoder: compact JSON like json.dumps(separators=(",", ":")) at several times its speed (the
+# recorder writes every raw message as JSON). A non-finite float becomes null (json.dumps would raise and
+# stop the recording); the payload builders leave non-finite values out before they get here.
+_JSON_ENCODE = msgspec.json.Encoder().encode
+
+
 def _dump_mapping(message: Any) -> bytes:
     if not isinstance(message, Mapping):
         raise TypeError(f"a JSON topic registered with register_json takes mappings, not {type(message).__name__}")
-    return json.dumps(message, separators=(",", ":"), allow_nan=False).encode()
+    return _JSON_ENCODE(message)
 
 
 _LOG_LEVELS = (

@@ -280,6 +280,9 @@ def _bisect_edge(ok: Callable[[float], bool], inside: float, outside: float) -> 
     return inside
 
 
+_REFIT_LAZY_AFTER = 64  # exchanges in the window before refits may be spaced out (refit_interval_ns)
+
+
 class _TwoWayLine:
     """Shared engine: a remote clock [us] against the host clock [ns] from two-way exchanges.
 
@@ -301,6 +304,7 @@ class _TwoWayLine:
         prior_drift_uncertainty_ppm: float,
         path_asymmetry_ns: float,
         jump_margin_ns: int,
+        refit_interval_ns: int = 0,
     ) -> None:
         if window_s <= 0 or max_samples < 2 or min_span_s < 0 or max_drift_ppm <= 0 or rtt_limit_ns <= 0:
             raise ValueError(
@@ -317,6 +321,8 @@ class _TwoWayLine:
         self._prior_unc = prior_drift_uncertainty_ppm * 1e-6
         self._asym = float(path_asymmetry_ns)
         self._jump_margin_ns = jump_margin_ns
+        self._refit_ns = refit_interval_ns
+        self._fit_newest_ns = 0  # host receive time of the newest exchange in the current fit
         self._samples: deque[_Sample] = deque()
         self._fit: _Fit | None = None
         self._dirty = False
@@ -409,7 +415,17 @@ class _TwoWayLine:
     # -- fitting ----------------------------------------------------------------------------
 
     def fit(self) -> _Fit | None:
+        if (
+            self._dirty
+            and self._fit is not None
+            and len(self._samples) >= _REFIT_LAZY_AFTER
+            and self._samples[-1].host_rx_ns - self._fit_newest_ns < self._refit_ns
+        ):
+            # Settled, and the fit is younger than the refit interval: the newest exchanges change the line
+            # by far less than its bound (the window holds minutes); refit at most every interval.
+            return self._fit
         if self._dirty:
+            self._fit_newest_ns = self._samples[-1].host_rx_ns if self._samples else 0
             self._fit = self._compute_fit()
             while self._fit is not None and self._fit.s_lo > self._fit.s_hi and len(self._samples) > 1:
                 # No line fits the whole window: the frequency moved more than the delays allow. Drop
@@ -643,8 +659,13 @@ class DeviceClockFilter(_TwoWayClock):
         settle_min_span_s: float = 4.0,
         dither: float = 0.1,
         seed: int = 0,
+        refit_interval_s: float = 0.0,
     ) -> None:
         """``path_asymmetry_ns``: known (request floor - reply floor) one-way delay difference, if calibrated.
+
+        ``refit_interval_s``: once the window holds enough exchanges, refit the line at most this often
+        (host time of the exchanges, so a replay refits at the same points); 0 refits on every query
+        after a new exchange. The recorder uses 0.5 s: each fit is a hull and a slope search over the window.
 
         ``dither``: the schedule hint varies by +-this fraction, so requests do not stay phase-locked
         to the 1 ms USB frames (a fixed phase would be a fixed, unobservable bias).
@@ -661,6 +682,7 @@ class DeviceClockFilter(_TwoWayClock):
             prior_drift_uncertainty_ppm=prior_drift_uncertainty_ppm,
             path_asymmetry_ns=path_asymmetry_ns,
             jump_margin_ns=jump_margin_ns,
+            refit_interval_ns=int(refit_interval_s * 1e9),
         )
         self._fast = fast_interval_s
         self._slow = slow_interval_s

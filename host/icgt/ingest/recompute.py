@@ -102,7 +102,8 @@ def _legacy_geotag_config(recording: Recording) -> GeotagConfig:
     return GeotagConfig(**kwargs)
 
 
-def _device_message(cls: type[M], data: dict[str, Any]) -> M:
+def device_message(cls: type[M], data: dict[str, Any]) -> M:
+    """A device message rebuilt from its log record (non-finite floats the recorder left out come back as NaN)."""
     kwargs: dict[str, Any] = {}
     for f in dataclasses.fields(cls):  # type: ignore[arg-type]
         if f.name in data:
@@ -153,33 +154,43 @@ class _Feeder:
             if cls is None:
                 return
             rx = int(data.get("host_rx_ns", 0))
-            self.sync.on_device(_device_message(cls, data), rx)
+            self.sync.on_device(device_message(cls, data), rx)
         elif topic == layout.CLOCK_DEVICE_EXCHANGES:
             rx = int(data["host_rx_ns"])
             self.sync.on_exchange(int(data["host_tx_ns"]), int(data["device_rx_us"]), int(data["device_tx_us"]), rx)
         elif topic == layout.CLOCK_AUTOPILOT_REQUESTS:
             rx = int(data["host_tx_ns"])
             self.sync.on_timesync_request(rx)
+        elif topic == layout.MAVLINK_OTHER_SYSTEMS:
+            for frame in data.get("frames") or ():
+                self._mavlink(topic, frame)
+            return
         elif topic.startswith(layout.MAVLINK_PREFIX):
-            raw, rx_any = data.get("raw"), data.get("host_rx_ns")
-            if not isinstance(raw, str) or not isinstance(rx_any, int):
-                self.counts["mavlink_undecodable"] += 1
+            if not self._mavlink(topic, data):
                 return
-            rx = rx_any
-            try:
-                msg = self._mav.decode(bytearray(base64.b64decode(raw)))
-            except (self._mav_error, ValueError, TypeError, IndexError, KeyError):
-                self.counts["mavlink_undecodable"] += 1
-                return
-            if not self.requests_logged and topic == _TIMESYNC_TOPIC and int(msg.tc1) != 0:
-                # Logs from before the requests were logged: take a reply's ts1 as a request we sent.
-                self.sync.on_timesync_request(int(msg.ts1))
-            self.sync.on_mavlink(msg, rx)
+            rx = int(data["host_rx_ns"])
         else:
             return
         self.latest_ns = max(self.latest_ns, rx)
         if self.lookahead_ns is not None:
             self._take(self.sync.poll(self.latest_ns - self.lookahead_ns))
+
+    def _mavlink(self, topic: str, data: dict[str, Any]) -> bool:
+        """Feed one logged MAVLink frame; False if it has no decodable raw frame."""
+        raw, rx = data.get("raw"), data.get("host_rx_ns")
+        if not isinstance(raw, str) or not isinstance(rx, int):
+            self.counts["mavlink_undecodable"] += 1
+            return False
+        try:
+            msg = self._mav.decode(bytearray(base64.b64decode(raw)))
+        except (self._mav_error, ValueError, TypeError, IndexError, KeyError):
+            self.counts["mavlink_undecodable"] += 1
+            return False
+        if not self.requests_logged and topic == _TIMESYNC_TOPIC and int(msg.tc1) != 0:
+            # Logs from before the requests were logged: take a reply's ts1 as a request we sent.
+            self.sync.on_timesync_request(int(msg.ts1))
+        self.sync.on_mavlink(msg, rx)
+        return True
 
     def _recorded_frame(self, data: dict[str, Any]) -> None:
         """The recorder wrote frame `frame_seq` here: poll as it did, at the time it did."""

@@ -40,6 +40,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from icgt.errors import IcgtError
 from icgt.mavlink.autopilot_rules import BOOT_CLOCK_TYPES, REBOOT_BACKSTEP_MS, is_autopilot_heartbeat
+from icgt.mavlink.frames import split_datagram
 
 __all__ = [
     "DEFAULT_STREAM_RATES",
@@ -177,6 +178,10 @@ class LinkConfig:
     timesync_fast_hz: float = 5.0  # after the autopilot appears (again) ...
     timesync_fast_count: int = 20  # ... for this many requests, then:
     timesync_slow_hz: float = 1.0
+    # Systems whose messages are decoded; frames of any other system on a UDP link are passed on as
+    # `UndecodedFrame`s (header only, no CRC check: kept raw, used for nothing). None decodes everything.
+    decode_systems: frozenset[int] | None = None
+    udp_receive_buffer_bytes: int = 4 * 1024 * 1024  # Linux's default (~208 KB) overflows in a parameter burst
 
     @property
     def effective_autopilot_system(self) -> int:
@@ -212,6 +217,7 @@ class LinkStats:
     queue_drops: int
     self_echoes: int
     timesync_sent: int
+    undecoded_frames: int
     outages: int
     transport_errors: int
 
@@ -324,6 +330,8 @@ class MavlinkLink:
         self._queue_drops = 0
         self._self_echoes = 0
         self._ts_sent = 0
+        self._undecoded = 0
+        self.receive_buffer_bytes = 0  # the UDP socket's receive buffer once open [bytes]
         self._outages = 0
         self._transport_errors = 0
         # timesync requests
@@ -340,6 +348,7 @@ class MavlinkLink:
         if self._threads:
             raise LinkError("link already started")
         self._conn = _open(self.config)
+        self._tune_socket(self._conn)
         self._stop.clear()
         self._threads = [
             threading.Thread(target=self._reader_loop, name="icgt-mavlink-reader", daemon=True),
@@ -348,6 +357,20 @@ class MavlinkLink:
         for thread in self._threads:
             thread.start()
         log.info("MAVLink link %s open as %d:%d", self.config.url, self.config.system_id, self.config.component_id)
+
+    def _tune_socket(self, conn: Any) -> None:
+        """A larger UDP receive buffer: a parameter download or a burst of another system's traffic
+        overflows Linux's default (about 208 KB) between two reads, and the kernel drops silently."""
+        sock = getattr(conn, "port", None)
+        if not self._datagram or not isinstance(sock, socket.socket):
+            return
+        want = self.config.udp_receive_buffer_bytes
+        with contextlib.suppress(OSError):
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, want)
+        got = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) // 2  # Linux reports twice what it books
+        if got < want:
+            log.warning("UDP receive buffer is %d bytes, %d asked (raise net.core.rmem_max to allow it)", got, want)
+        self.receive_buffer_bytes = got
 
     def stop(self, timeout_s: float = 2.0) -> None:
         """Stop both threads (joined) and close the transport. Safe to call twice."""
@@ -474,6 +497,7 @@ class MavlinkLink:
                 queue_drops=self._queue_drops,
                 self_echoes=self._self_echoes,
                 timesync_sent=self._ts_sent,
+                undecoded_frames=self._undecoded,
                 outages=self._outages,
                 transport_errors=self._transport_errors,
             )
@@ -540,6 +564,17 @@ class MavlinkLink:
         return parser
 
     def _feed(self, data: bytes, rx_ns: int) -> None:
+        decode = self.config.decode_systems
+        if decode is not None and self._datagram:
+            split = split_datagram(data, decode)
+            if split is not None:
+                data, others = split
+                with self._lock:
+                    self._undecoded += len(others)
+                for frame in others:
+                    self._handle(Received(frame, rx_ns))
+                if not data:
+                    return
         truncated = False
         try:
             msgs = self._parser.parse_buffer(data) or []
@@ -699,6 +734,7 @@ class MavlinkLink:
         except LinkError as exc:
             log.debug("reopen of %s failed: %s", self.config.url, exc)
             return
+        self._tune_socket(conn)
         with self._send_lock:
             if self._stop.is_set():
                 with contextlib.suppress(Exception):

@@ -93,6 +93,7 @@ class RecorderStatus:
 _DEVICE, _EXCHANGE, _DEVICE_EVENT, _MAVLINK, _MAVLINK_EVENT, _TIMESYNC_SENT = range(6)
 _DRAIN_MAX = 2000  # inputs handled before the worker polls again (bounds frame latency under a flood)
 _WORK_PERIOD_S = 0.01  # the worker wakes this often; the readers never wake it (no switch per message)
+_OTHER_SYSTEMS_BATCH = 500  # other systems' MAVLink frames per /mavlink/other_systems record, at most
 
 
 class Recorder:
@@ -104,6 +105,9 @@ class Recorder:
         self._mono_to_utc_ns = time.time_ns() - time.monotonic_ns()  # fixed: log times stay monotonic
         self.sync_config = SyncConfig(geotag=config.camera, autopilot_system=config.mavlink.system_id)
         self.sync = Synchroniser(self.sync_config)  # fed and polled by the worker thread only
+        # MAVLink systems whose messages are logged field by field: the vehicle and its ground stations.
+        self._expanded_systems = frozenset({config.mavlink.system_id, *config.mavlink.ground_station_systems})
+        self._other_systems: list[dict[str, Any]] = []  # their raw frames, written once per inbox drain
         # Filled by the reader threads (deque.append is atomic), emptied by the worker only.
         self._inbox: deque[tuple[int, Any, int]] = deque()
         self.mcap: McapRecorder | None = None
@@ -242,6 +246,7 @@ class Recorder:
         self.mcap.register_json(layout.CLOCK_UTC, "icgt.clock.utc", layout.UTC_SCHEMA)
         self.mcap.register_json(layout.LINK_EVENTS, "icgt.link_event", layout.LINK_EVENT_SCHEMA)
         self.mcap.register_json(layout.COUNTERS, "icgt.counters", layout.COUNTERS_SCHEMA)
+        self.mcap.register_json(layout.MAVLINK_OTHER_SYSTEMS, "icgt.mavlink_raw", layout.MAVLINK_RAW_SCHEMA)
 
     def _log_time(self, host_ns: int) -> int:
         return host_ns + self._mono_to_utc_ns
@@ -426,7 +431,7 @@ class Recorder:
             StreamRate(2, "SYSTEM_TIME", 2.0),
         )
         self.mavlink = MavlinkLink(
-            LinkConfig(url=cfg.url, system_id=cfg.system_id, stream_rates=rates),
+            LinkConfig(url=cfg.url, system_id=cfg.system_id, stream_rates=rates, decode_systems=self._expanded_systems),
             on_event=lambda event: self._inbox.append((_MAVLINK_EVENT, event, event.host_ns)),
             on_timesync_sent=lambda tx_ns: self._inbox.append((_TIMESYNC_SENT, tx_ns, tx_ns)),
         )
@@ -470,6 +475,17 @@ class Recorder:
         name = rec.type
         if name == "BAD_DATA":
             return
+        if rec.src_system not in self._expanded_systems:
+            # Other vehicles and clients on a shared network: kept raw, batched into one record per drain
+            # of the inbox (a flood of them must not cost a JSON record each); the synchroniser still sees
+            # each one (and ignores it), in order.
+            self._other_systems.append(topics.mavlink_raw_payload(rec.msg, rec.rx_ns))
+            self.sync.on_mavlink(rec.msg, rec.rx_ns)
+            if len(self._other_systems) >= _OTHER_SYSTEMS_BATCH:
+                self._flush_other_systems()
+            return
+        if self._other_systems:
+            self._flush_other_systems()
         topic = topics.mavlink_topic(name)
         if topic not in self._registered and self.mcap is not None:
             with contextlib.suppress(RecordingError):
@@ -477,6 +493,10 @@ class Recorder:
             self._registered.add(topic)
         self._write(topic, topics.mavlink_payload(rec.msg, rec.rx_ns), rec.rx_ns)
         self.sync.on_mavlink(rec.msg, rec.rx_ns)
+
+    def _flush_other_systems(self) -> None:
+        batch, self._other_systems = self._other_systems, []
+        self._write(layout.MAVLINK_OTHER_SYSTEMS, {"frames": batch}, batch[0]["host_rx_ns"])
 
     def _on_timesync_sent(self, tx_ns: int) -> None:
         self._write(layout.CLOCK_AUTOPILOT_REQUESTS, {"host_tx_ns": tx_ns}, tx_ns)
@@ -528,7 +548,7 @@ class Recorder:
             try:
                 with self._worker_lock:
                     self._drain(limit=_DRAIN_MAX)
-                    self._work_once()
+                    self._work_once(time.monotonic_ns())
             except Exception:  # the worker must outlive any bug: frames keep being emitted
                 log.exception("recorder worker error (recording continues)")
 
@@ -538,6 +558,8 @@ class Recorder:
         while inbox and (limit is None or n < limit):
             self._handle(inbox.popleft())
             n += 1
+        if self._other_systems:
+            self._flush_other_systems()
 
     def _handle(self, item: tuple[int, Any, int]) -> None:
         kind, payload, _ = item
@@ -554,8 +576,7 @@ class Recorder:
         elif kind == _MAVLINK_EVENT:
             self._on_mavlink_event(payload)
 
-    def _work_once(self) -> None:
-        now = time.monotonic_ns()
+    def _work_once(self, now: int) -> None:
         if self.device is not None and self.device.connected and now >= self._next_sync_ns:
             with contextlib.suppress(DeviceLinkError):
                 self.device.request_time_sync()

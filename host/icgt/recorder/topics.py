@@ -61,6 +61,7 @@ __all__ = [
     "device_topic",
     "location_fix",
     "mavlink_payload",
+    "mavlink_raw_payload",
     "mavlink_schema",
     "mavlink_topic",
     "pose_and_transform",
@@ -154,6 +155,17 @@ def mavlink_payload(msg: Any, host_rx_ns: int) -> dict[str, Any]:
             v = [x for x in v if not (isinstance(x, float) and not math.isfinite(x))]
         out[name] = v
     return out
+
+
+def mavlink_raw_payload(msg: Any, host_rx_ns: int) -> dict[str, Any]:
+    """A MAVLink message kept raw: its type, ids, receive time and frame bytes (no field expansion)."""
+    return {
+        "msg_type": msg.get_type(),
+        "src_system": msg.get_srcSystem(),
+        "src_component": msg.get_srcComponent(),
+        "host_rx_ns": host_rx_ns,
+        "raw": base64.b64encode(bytes(msg.get_msgbuf())).decode(),
+    }
 
 
 def location_fix(rec: FrameRecord, utc_ns: int) -> LocationFix | None:

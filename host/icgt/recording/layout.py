@@ -9,8 +9,10 @@ be recomputed later; derived ones (frames, clock estimates) say how they were ma
   map and 3D panels;
 * ``/device/<message>`` (JSON): every device message (EXPOSURE, IMU, RANGE, PPS, HELLO, STATUS, LOG, ...)
   with its host receive time ``host_rx_ns``;
-* ``/mavlink/<message>`` (JSON): every MAVLink message received, with ``host_rx_ns`` and the raw frame
-  (base64);
+* ``/mavlink/<message>`` (JSON): every MAVLink message received from the vehicle's system and the
+  configured ground stations, with ``host_rx_ns`` and the raw frame (base64);
+* ``/mavlink/other_systems`` (JSON): every message from any other system, raw (type, ids, ``host_rx_ns``,
+  frame in base64), several per record, so that a flood on a shared network costs no field expansion;
 * ``/clock/device/exchanges`` (JSON): every device TIME_SYNC exchange (the device clock is refitted
   from these);
 * ``/clock/autopilot/requests`` (JSON): every MAVLink TIMESYNC request sent (replies are paired
@@ -45,6 +47,7 @@ CLOCK_AUTOPILOT_REQUESTS = "/clock/autopilot/requests"
 CLOCK_UTC = "/clock/utc"
 DEVICE_PREFIX = "/device/"
 MAVLINK_PREFIX = "/mavlink/"
+MAVLINK_OTHER_SYSTEMS = "/mavlink/other_systems"
 WORLD_FRAME = "enu"
 CAMERA_FRAME = "camera"
 
@@ -130,6 +133,25 @@ LINK_EVENT_SCHEMA: dict[str, Any] = {
         "count": _INT,
         "outage_ns": _INT,
         "host_ns": _INT,
+    },
+}
+MAVLINK_RAW_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "description": "MAVLink frames from systems other than the vehicle's and its ground stations, raw, in order",
+    "properties": {
+        "frames": {
+            "type": "array",
+            "items": {
+                "type": "object",
+                "properties": {
+                    "msg_type": {"type": "string"},
+                    "src_system": _INT,
+                    "src_component": _INT,
+                    "host_rx_ns": {"type": "integer", "description": "host CLOCK_MONOTONIC at receipt [ns]"},
+                    "raw": {"type": "string", "contentEncoding": "base64", "description": "the frame as received"},
+                },
+            },
+        }
     },
 }
 COUNTERS_SCHEMA: dict[str, Any] = {

@@ -101,7 +101,7 @@ class Synchroniser:
         autopilot_clock: AutopilotClockFilter | None = None,
     ) -> None:
         self.config = cfg = config or SyncConfig()
-        self.device_clock = device_clock or DeviceClockFilter(slow_interval_s=0.1)
+        self.device_clock = device_clock or DeviceClockFilter(slow_interval_s=0.1, refit_interval_s=0.5)
         self.autopilot_clock = autopilot_clock or AutopilotClockFilter()
         self.autopilot_one_way = OneWayClock(min_delay_allowance_ms=cfg.one_way_min_delay_allowance_ms)
         self.autopilot_time = AutopilotTimeMap(self.autopilot_clock, self.autopilot_one_way)

@@ -80,6 +80,16 @@ def export_items(
         points, polygons = write_geojson(out_dir, items, geoid_separation_m=geoid_separation_m, progress=progress)
         written["geojson points"] = points
         written["geojson footprints"] = polygons
+    if "gpkg" in wanted:
+        from icgt.export.gis import GPKG_FILE, write_gpkg
+
+        for layer, n in write_gpkg(out_dir / GPKG_FILE, items).items():
+            written[f"gpkg {layer}"] = n
+    if "kml" in wanted:
+        from icgt.export.gis import KML_FILE, write_kml
+
+        for layer, n in write_kml(out_dir / KML_FILE, items).items():
+            written[f"kml {layer}"] = n
     if "odm" in wanted:
         written["geo.txt lines"] = write_geo_txt(out_dir / GEO_TXT, items, problems, progress=progress)
     if "opensfm" in wanted:

@@ -209,6 +209,15 @@ def build_parser() -> argparse.ArgumentParser:
     add_export_arguments(export)
     export.set_defaults(func=_cmd_export)
 
+    from icgt.report import add_info_arguments, add_report_arguments, cmd_info, cmd_report
+
+    report = sub.add_parser("report", help="the flight report: one self-contained HTML page")
+    add_report_arguments(report)
+    report.set_defaults(func=cmd_report)
+    info = sub.add_parser("info", help="a recording's summary in the terminal")
+    add_info_arguments(info)
+    info.set_defaults(func=cmd_info)
+
     demo = sub.add_parser("demo", help="the main job on simulated hardware, with a summary against truth")
     demo.add_argument("--scenario", default="pier_scan")
     demo.add_argument("--out", type=Path, default=Path("demo-out"))

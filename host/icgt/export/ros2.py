@@ -44,6 +44,7 @@ in body FRD.
 
 from __future__ import annotations
 
+import heapq
 import logging
 import math
 import shutil
@@ -158,7 +159,7 @@ class _Bag:
         known = self.types.setdefault(topic, msgtype)
         if known != msgtype:
             raise Ros2ExportError(f"topic {topic} would carry two types ({known}, {msgtype})")
-        self.pending.append((log_ns, self._n, topic, bytes(self.store.serialize_cdr(msg, msgtype))))
+        heapq.heappush(self.pending, (log_ns, self._n, topic, bytes(self.store.serialize_cdr(msg, msgtype))))
         self._n += 1
 
     def tf(self, ns: int, parent: str, child: str, xyz: Any, q_wxyz: Any) -> Any:
@@ -383,52 +384,87 @@ def _source(recording: Any) -> Iterator[tuple[str, int, dict[str, Any]]]:
         yield m.topic, m.log_time_ns, m.data
 
 
-def write_ros2_bag(recording: Any, out_dir: Path) -> Ros2Result:
-    """Write the recording as a rosbag2 folder `out_dir / ros2` (MCAP storage); returns the counts written.
+_REORDER_WINDOW_NS = 10_000_000_000
+"""Messages are held this long [ns of log time] to be written in log-time order: a recording's
+file order strays from log-time order by less than a chunk (about a second)."""
 
-    An existing bag folder there is replaced (rosbags refuses to write into one).
-    """
+
+def _latched_qos() -> Any:
     from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
-    from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 
-    bag = _Bag()
-    conv = _Converter(bag, recording)
-    first_ns: int | None = None
-    # GPS_RAW_INT status is needed before the GLOBAL_POSITION_INT it describes: sort by log time first
-    records = sorted(_source(recording), key=lambda r: r[1])
-    for topic, ns, data in records:
-        if first_ns is None:
-            first_ns = ns
-        conv.convert(topic, ns, data)
-    if first_ns is None:
-        raise Ros2ExportError(f"{recording.path}: nothing to convert (no frames, sensor, telemetry or log messages)")
-    conv.static_mount(first_ns)
-    bag.pending.sort(key=lambda p: (p[0], p[1]))
-
-    path = out_dir / BAG_DIR
-    if path.exists():
-        shutil.rmtree(path)
-    latched = Qos(
+    zero = QosTime(0, 0)
+    return Qos(
         QosHistory.KEEP_LAST,
         1,
         QosReliability.RELIABLE,
         QosDurability.TRANSIENT_LOCAL,
-        QosTime(0, 0),
-        QosTime(0, 0),
+        zero,
+        zero,
         QosLiveliness.AUTOMATIC,
-        QosTime(0, 0),
+        zero,
         False,
     )
+
+
+def write_ros2_bag(recording: Any, out_dir: Path) -> Ros2Result:
+    """Write the recording as a rosbag2 folder `out_dir / ros2` (MCAP storage); returns the counts written.
+
+    Streams: the recording is read once in file order and converted as it goes; a reorder buffer of
+    `_REORDER_WINDOW_NS` puts the bag in log-time order (a message later than that is written where
+    it came, counted and reported). An existing bag folder there is replaced (rosbags refuses to
+    write into one).
+    """
+    from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
+
+    if not any(recording.topics().get(t) for t in _SOURCE_TOPICS):
+        raise Ros2ExportError(f"{recording.path}: nothing to convert (no frames, sensor, telemetry or log messages)")
+    bag = _Bag()
+    conv = _Converter(bag, recording)
+    path = out_dir / BAG_DIR
+    if path.exists():
+        shutil.rmtree(path)
     counts: dict[str, int] = {}
+    late = 0
+    last_ns = -1
     try:
         with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-            conns = {}
-            for topic, msgtype in sorted(bag.types.items()):
-                qos = (latched,) if topic == "/tf_static" else ()
-                conns[topic] = writer.add_connection(topic, msgtype, typestore=bag.store, offered_qos_profiles=qos)
-            for ns, _, topic, raw in bag.pending:
-                writer.write(conns[topic], ns, raw)
-                counts[topic] = counts.get(topic, 0) + 1
+            conns: dict[str, Any] = {}
+
+            def flush(before_ns: int | None) -> None:
+                nonlocal late, last_ns
+                while bag.pending and (before_ns is None or bag.pending[0][0] < before_ns):
+                    ns, _, topic, raw = heapq.heappop(bag.pending)
+                    conn = conns.get(topic)
+                    if conn is None:
+                        qos = (_latched_qos(),) if topic == "/tf_static" else ()
+                        conn = conns[topic] = writer.add_connection(
+                            topic, bag.types[topic], typestore=bag.store, offered_qos_profiles=qos
+                        )
+                    if ns < last_ns:
+                        late += 1
+                    last_ns = max(last_ns, ns)
+                    writer.write(conn, ns, raw)
+                    counts[topic] = counts.get(topic, 0) + 1
+
+            newest = None
+            for topic, ns, data in _source(recording):
+                if newest is None:
+                    conv.static_mount(ns)
+                newest = ns if newest is None else max(newest, ns)
+                conv.convert(topic, ns, data)
+                if bag.pending and bag.pending[0][0] < newest - _REORDER_WINDOW_NS:
+                    flush(newest - _REORDER_WINDOW_NS)
+            if newest is None:
+                raise Ros2ExportError(
+                    f"{recording.path}: nothing to convert (no frames, sensor, telemetry or log messages)"
+                )
+            flush(None)
     except (WriterError, OSError) as exc:
         raise Ros2ExportError(f"cannot write the ROS 2 bag {path}: {exc}") from exc
+    if late:
+        log.warning(
+            "ros2 export: %d messages came more than %.0f s out of log-time order: written as they came",
+            late,
+            _REORDER_WINDOW_NS / 1e9,
+        )
     return Ros2Result(path, counts)

@@ -18,6 +18,7 @@ from icgt.report.summary import FlightData
 OK_COLOUR = "#1f77b4"
 FLAG_COLOUR = "#d62728"
 _FLAG_ROWS_MAX = 10
+_TRACK_POINTS_MAX = 5000
 
 
 def _plt() -> Any:
@@ -58,6 +59,8 @@ def track_figure(data: FlightData) -> str:
     plt = _plt()
     fig, (plan, elev) = plt.subplots(1, 2, figsize=(11, 4.2))
     track = data.track_enu_m
+    if len(track) > _TRACK_POINTS_MAX:  # an hour at 50 Hz would make a 5 MB page: every k-th sample is enough
+        track = track[:: -(-len(track) // _TRACK_POINTS_MAX)]
     pos, flagged = _frame_xyz(data)
     if len(track):
         plan.plot(track[:, 0], track[:, 1], "-", color="#888", lw=1, label="vehicle track (GLOBAL_POSITION_INT)")

@@ -172,7 +172,8 @@ def _events(data: FlightData, events: list[dict[str, Any]]) -> None:
         if kind in ("sequence_gap", "frames_rejected"):
             data.losses.append(Loss(link, t, kind, int(e.get("count") or 0)))
         elif kind in ("disconnected", "autopilot_lost"):
-            open_since.setdefault(link, (t, str(e.get("detail", kind))))
+            # autopilot_lost comes after its silence timeout: its outage_ns is the time since the last message
+            open_since.setdefault(link, (t - outage / 1e9, str(e.get("detail", kind))))
         elif outage > 0:
             start, detail = open_since.pop(link, (t - outage / 1e9, str(e.get("detail", kind))))
             data.outages.append(Outage(link, start, t, detail))

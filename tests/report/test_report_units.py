@@ -57,3 +57,21 @@ def test_coverage_grid_counts_overlaps() -> None:
     cell = (3.0 / 300) ** 2
     assert abs(np.sum(counts == 2) * cell - 1.0) < 0.02  # the 1 m^2 both cover
     assert abs(np.sum(counts >= 1) * cell - 3.0) < 0.03
+
+
+def test_a_recording_without_frames_still_reports(tmp_path: Path) -> None:
+    from icgt.cli import main
+    from icgt.recorder import topics
+    from icgt.recording import McapRecorder
+
+    path = tmp_path / "log.mcap"
+    with McapRecorder(path, fsync=False) as rec:
+        rec.register_json(topics.LINK_EVENTS, "icgt.link_event", {"type": "object"})
+        for i, kind in enumerate(("disconnected", "connected")):
+            event = {"link": "device", "kind": kind, "detail": kind, "count": 0, "outage_ns": i * 10**9}
+            rec.write(topics.LINK_EVENTS, event | {"host_ns": 5 * 10**9 + i * 10**9}, 5 * 10**9 + i * 10**9)
+    out = tmp_path / "report.html"
+    assert main(["report", str(path), "--out", str(out)]) == 0
+    text = out.read_text()
+    assert "Frames (0)" in text and "no camera calibration in the recording" in text
+    assert text.count("<svg") == 4  # no footprints to draw

@@ -406,6 +406,21 @@ def _latched_qos() -> Any:
     )
 
 
+def _check_read_back(path: Path, counts: dict[str, int]) -> None:
+    """Read the bag back with rosbags (every message of the MCAP file, not just metadata.yaml)."""
+    from rosbags.rosbag2 import Reader
+
+    got: dict[str, int] = {}
+    try:
+        with Reader(path) as reader:
+            for conn, _, _ in reader.messages():
+                got[conn.topic] = got.get(conn.topic, 0) + 1
+    except Exception as exc:  # rosbags raises its own errors and MCAP decoding errors
+        raise Ros2ExportError(f"cannot read back the ROS 2 bag {path}: {exc}") from exc
+    if got != counts:
+        raise Ros2ExportError(f"the ROS 2 bag {path} reads back {got}, {counts} were written")
+
+
 def write_ros2_bag(recording: Any, out_dir: Path) -> Ros2Result:
     """Write the recording as a rosbag2 folder `out_dir / ros2` (MCAP storage); returns the counts written.
 
@@ -461,6 +476,7 @@ def write_ros2_bag(recording: Any, out_dir: Path) -> Ros2Result:
             flush(None)
     except (WriterError, OSError) as exc:
         raise Ros2ExportError(f"cannot write the ROS 2 bag {path}: {exc}") from exc
+    _check_read_back(path, counts)
     if late:
         log.warning(
             "ros2 export: %d messages came more than %.0f s out of log-time order: written as they came",

@@ -231,3 +231,18 @@ def test_a_recording_with_nothing_to_convert_is_refused(tmp_path: Path) -> None:
     with pytest.raises(Ros2ExportError, match="nothing to convert"):
         write_ros2_bag(fake, tmp_path)
     assert not (tmp_path / "ros2").exists()
+
+
+def test_ros2_alone_needs_no_camera_model_nor_frames(tmp_path: Path) -> None:
+    from icgt.recording import McapRecorder
+
+    path = tmp_path / "log.mcap"
+    with McapRecorder(path, fsync=False) as rec:  # a recording of range samples only: no frames, no calibration
+        rec.register_json("/device/range", "icgt.device.RANGE", {"type": "object"})
+        for i in range(5):
+            rec.write("/device/range", {"distance_cm": 300 + i, "flags": 1}, 1_700_000_000_000_000_000 + i * 10**7)
+    out = tmp_path / "out"
+    assert main(["export", str(path), "--out", str(out), "--formats", "ros2", "--no-progress"]) == 0
+    with Reader(out / "ros2") as reader:
+        assert {c.topic: c.msgcount for c in reader.connections} == {"/range": 5, "/tf_static": 1}
+    assert main(["export", str(path), "--out", str(tmp_path / "o2"), "--formats", "csv", "--no-progress"]) == 1

@@ -265,19 +265,24 @@ def run_export(
         log.warning("%s", recording.note)
     total = recording.topics().get("/frames")
     frames = list(tqdm(recording.frames(), desc="frames", unit="frame", total=total, disable=not progress))
-    if not frames:
+    ros2_only = set(formats) <= {"ros2"}  # the bag needs neither frames nor a camera model
+    if not frames and not ros2_only:
         raise ExportError(f"{log_path}: the recording has no frames (/frames is empty)")
     metadata = recording.metadata
     camera = load_calibration(calibration) if calibration is not None else camera_from_metadata(metadata)
-    if camera is None:
+    if camera is None and not ros2_only:
         raise ExportError(f"{log_path}: no camera calibration in the recording: give --calibration FILE")
     normal = plane.normal if plane is not None else surface_normal_from_metadata(metadata)
-    projector = Projector(
-        camera,
-        origin=recording.enu_origin,
-        structure=plane,
-        surface_normal=normal,
-        anchor="structure" if anchor == "structure" else "range",
+    projector = (
+        Projector(
+            camera,
+            origin=recording.enu_origin,
+            structure=plane,
+            surface_normal=normal,
+            anchor="structure" if anchor == "structure" else "range",
+        )
+        if camera is not None
+        else None
     )
     geoid = geoid_separation_from_log(recording) if geoid_separation == "auto" else geoid_separation
     assert geoid is None or isinstance(geoid, float)

@@ -21,6 +21,9 @@ help:
 	@echo "make generate / make vectors - rewrite generated code / test vectors after editing protocol/messages.toml"
 
 $(VENV)/.installed: host/pyproject.toml
+	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 11))' || { echo "icgt needs Python 3.11 or newer; \
+	$(PYTHON) is $$($(PYTHON) --version 2>&1). On Ubuntu 22.04: apt-get install python3.11 python3.11-venv, \
+	then make PYTHON=python3.11"; exit 1; }
 	$(PYTHON) -m venv $(VENV)
 	$(VENV)/bin/pip install --quiet --upgrade pip
 	$(VENV)/bin/pip install --quiet -e 'host[dev]'

@@ -24,3 +24,12 @@ def cpp_vector_runner(build_dir: Path) -> Path:
     if not runner.exists():
         pytest.fail(f"{runner} is missing: build the C++ side first (make build, or make test)")
     return runner
+
+
+@pytest.fixture(scope="session")
+def export_flight(tmp_path_factory: pytest.TempPathFactory) -> object:
+    """One flight of tests/export/export_flight.toml (~25 s) shared by the ros2, GIS and report tests."""
+    from icgt.demo import fly
+    from icgt.sim.scenario import load_scenario
+
+    return fly(load_scenario(ROOT / "tests" / "export" / "export_flight.toml"), tmp_path_factory.mktemp("flight"))

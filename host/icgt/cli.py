@@ -36,7 +36,7 @@ def _until_signal(stop: Callable[[], None]) -> threading.Event:
 
 
 def _cmd_version(_: argparse.Namespace) -> int:
-    print(f"icgt {__version__}, protocol version {PROTOCOL_VERSION}, table hash 0x{TABLE_HASH:08X}")
+    print(_version_text())
     return 0
 
 
@@ -151,7 +151,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="icgt", description="ICGT image capturing and geo-tagging: host tools")
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    parser.add_argument("--version", action="version", version=_version_text())
+    _add_logging_options(parser, top=True)
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("version", help="print the package and protocol versions").set_defaults(func=_cmd_version)
 
@@ -208,17 +209,50 @@ def build_parser() -> argparse.ArgumentParser:
     add_export_arguments(export)
     export.set_defaults(func=_cmd_export)
 
+    from icgt.report import add_info_arguments, add_report_arguments, cmd_info, cmd_report
+
+    report = sub.add_parser("report", help="the flight report: one self-contained HTML page")
+    add_report_arguments(report)
+    report.set_defaults(func=cmd_report)
+    info = sub.add_parser("info", help="a recording's summary in the terminal")
+    add_info_arguments(info)
+    info.set_defaults(func=cmd_info)
+
     demo = sub.add_parser("demo", help="the main job on simulated hardware, with a summary against truth")
     demo.add_argument("--scenario", default="pier_scan")
     demo.add_argument("--out", type=Path, default=Path("demo-out"))
     demo.set_defaults(func=_cmd_demo)
+    for subparser in sub.choices.values():  # -v/-q/--log-level after the subcommand too
+        _add_logging_options(subparser, top=False)
     return parser
+
+
+_LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
+
+
+def _add_logging_options(parser: argparse.ArgumentParser, *, top: bool) -> None:
+    """-v/-q/--log-level; on a subcommand they default to nothing, so the top-level choice stands."""
+    group = parser.add_argument_group("logging")
+    default = "INFO" if top else argparse.SUPPRESS
+    group.add_argument(
+        "-v", "--verbose", dest="log_level", action="store_const", const="DEBUG", default=default, help="debug logging"
+    )
+    group.add_argument(
+        "-q", "--quiet", dest="log_level", action="store_const", const="WARNING", default=default, help="warnings only"
+    )
+    group.add_argument(
+        "--log-level", dest="log_level", type=str.upper, choices=_LOG_LEVELS, default=default, help="log level"
+    )
+
+
+def _version_text() -> str:
+    return f"icgt {__version__}, protocol version {PROTOCOL_VERSION}, table hash 0x{TABLE_HASH:08X}"
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.INFO,
+        level=getattr(logging, args.log_level),
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
         stream=sys.stderr,
     )

@@ -223,4 +223,4 @@ def test_run_export_from_a_recording_without_images(tmp_path: Path) -> None:
     assert len(cams["features"][0]["geometry"]["coordinates"]) == 2  # no GPS_RAW_INT: geoid unknown, 2D
     assert check_geojson(cams)[0] == []
     with pytest.raises(ExportError, match="unknown export format"):
-        run_export(path, tmp_path / "out2", formats=["kml"])
+        run_export(path, tmp_path / "out2", formats=["shp"])

@@ -1,11 +1,13 @@
 """`icgt export LOG --images DIR --out DIR`: match the card's JPEGs to the log and write every export.
 
-    icgt export flight.mcap --images card/DCIM --out export/ [--formats csv,geojson,odm,opensfm,jpeg]
+    icgt export flight.mcap --images card/DCIM --out export/ [--formats csv,gpkg,geojson,kml,odm,opensfm,jpeg,ros2]
                 [--calibration camera.toml] [--plane E,N,U,nE,nN,nU] [--anchor range|structure]
                 [--geoid-separation auto|none|METRES] [--no-progress]
 
-Writes into --out: frames.csv, cameras.geojson, footprints.geojson, geo.txt, exif_overrides.json,
-images/ (geotagged copies; the originals are only read) and problems.csv (one row per input problem:
+Writes into --out: frames.csv, icgt.gpkg (GeoPackage: cameras, footprints, footprints on the face),
+cameras.geojson, footprints.geojson, icgt.kml (absolute MSL heights), geo.txt, exif_overrides.json,
+images/ (geotagged copies; the originals are only read), with ``ros2`` the ROS 2 bag ros2/ (not by
+default: it holds every sensor sample) and problems.csv (one row per input problem:
 no fix, zero GPS, no UTC, an image without EXIF time or without an exposure, an exposure without an
 image...). One bad image never stops the export.
 """
@@ -31,7 +33,8 @@ if TYPE_CHECKING:  # the heavy modules load when a command runs, not when the pa
 
 log = logging.getLogger(__name__)
 
-FORMATS = ("csv", "geojson", "odm", "opensfm", "jpeg")
+FORMATS = ("csv", "gpkg", "geojson", "kml", "odm", "opensfm", "jpeg", "ros2")
+DEFAULT_FORMATS = ("csv", "gpkg", "geojson", "kml", "odm", "opensfm", "jpeg")
 CSV_FILE = "frames.csv"
 PROBLEMS_FILE = "problems.csv"
 IMAGES_DIR = "images"
@@ -77,6 +80,16 @@ def export_items(
         points, polygons = write_geojson(out_dir, items, geoid_separation_m=geoid_separation_m, progress=progress)
         written["geojson points"] = points
         written["geojson footprints"] = polygons
+    if "gpkg" in wanted:
+        from icgt.export.gis import GPKG_FILE, write_gpkg
+
+        for layer, n in write_gpkg(out_dir / GPKG_FILE, items).items():
+            written[f"gpkg {layer}"] = n
+    if "kml" in wanted:
+        from icgt.export.gis import KML_FILE, write_kml
+
+        for layer, n in write_kml(out_dir / KML_FILE, items).items():
+            written[f"kml {layer}"] = n
     if "odm" in wanted:
         written["geo.txt lines"] = write_geo_txt(out_dir / GEO_TXT, items, problems, progress=progress)
     if "opensfm" in wanted:
@@ -226,7 +239,7 @@ def run_export(
     out_dir: Path,
     *,
     images: Path | None = None,
-    formats: Sequence[str] = FORMATS,
+    formats: Sequence[str] = DEFAULT_FORMATS,
     calibration: Path | None = None,
     plane: Plane | None = None,
     anchor: str = "range",
@@ -252,19 +265,24 @@ def run_export(
         log.warning("%s", recording.note)
     total = recording.topics().get("/frames")
     frames = list(tqdm(recording.frames(), desc="frames", unit="frame", total=total, disable=not progress))
-    if not frames:
+    ros2_only = set(formats) <= {"ros2"}  # the bag needs neither frames nor a camera model
+    if not frames and not ros2_only:
         raise ExportError(f"{log_path}: the recording has no frames (/frames is empty)")
     metadata = recording.metadata
     camera = load_calibration(calibration) if calibration is not None else camera_from_metadata(metadata)
-    if camera is None:
+    if camera is None and not ros2_only:
         raise ExportError(f"{log_path}: no camera calibration in the recording: give --calibration FILE")
     normal = plane.normal if plane is not None else surface_normal_from_metadata(metadata)
-    projector = Projector(
-        camera,
-        origin=recording.enu_origin,
-        structure=plane,
-        surface_normal=normal,
-        anchor="structure" if anchor == "structure" else "range",
+    projector = (
+        Projector(
+            camera,
+            origin=recording.enu_origin,
+            structure=plane,
+            surface_normal=normal,
+            anchor="structure" if anchor == "structure" else "range",
+        )
+        if camera is not None
+        else None
     )
     geoid = geoid_separation_from_log(recording) if geoid_separation == "auto" else geoid_separation
     assert geoid is None or isinstance(geoid, float)
@@ -278,6 +296,11 @@ def run_export(
     written = export_items(
         items, out_dir, wanted, problems, geoid_separation_m=geoid, progress=progress, images_root=images
     )
+    if "ros2" in wanted:
+        from icgt.export.ros2 import write_ros2_bag
+
+        bag = write_ros2_bag(recording, out_dir)
+        written["ros2 messages"] = bag.total
     problems.write_csv(out_dir / PROBLEMS_FILE)
     return ExportResult(out_dir, written, problems, items)
 
@@ -310,7 +333,11 @@ def add_export_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("log", type=Path, help="the recording (.mcap)")
     parser.add_argument("--images", type=Path, help="folder of the camera card's JPEGs (only read)")
     parser.add_argument("--out", type=Path, required=True, help="output folder (not the images folder)")
-    parser.add_argument("--formats", default=",".join(FORMATS), help=f"comma-separated subset of {','.join(FORMATS)}")
+    parser.add_argument(
+        "--formats",
+        default=",".join(DEFAULT_FORMATS),
+        help=f"comma-separated subset of {','.join(FORMATS)} (default {','.join(DEFAULT_FORMATS)})",
+    )
     parser.add_argument("--calibration", type=Path, help="camera calibration (.toml, OpenCV .yaml/.json)")
     parser.add_argument("--plane", help="structure plane E,N,U,nE,nN,nU in the recording's ENU frame [m]")
     parser.add_argument(

@@ -1,0 +1,114 @@
+"""GeoPackage and KML exports of one simulated flight, read back without the writer's code.
+
+- GeoPackage (sqlite3 and the OGC tables): application id, every FrameRecord field under its full
+  name, times to the millisecond with their zone and to the microsecond, heights MSL on EPSG:9707;
+  the footprints on the face are valid 2D polygons whose areas are the geometry's footprint areas;
+- KML (ElementTree): every placemark's altitudeMode is absolute and its height the MSL altitude;
+- GeoJSON is still written next to them.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import struct
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from typing import Any
+
+import pytest
+import shapely
+
+from icgt.cli import main
+from icgt.export.common import RECORD_FIELDS, utc_iso
+from icgt.ingest import read
+
+KML = "{http://www.opengis.net/kml/2.2}"
+
+
+@pytest.fixture(scope="module")
+def out(export_flight: Any, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("gis")
+    args = ["export", str(export_flight.mcap), "--images", str(export_flight.card), "--out", str(out), "--no-progress"]
+    assert main(args) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def frames(export_flight: Any) -> dict[int, Any]:
+    return {f.frame_seq: f for f in read(export_flight.mcap).frames()}
+
+
+def _gpkg_geometry(blob: bytes) -> Any:
+    """The WKB inside a GeoPackage geometry blob (GPKG header: magic, version, flags, srs_id, envelope)."""
+    assert blob[:2] == b"GP"
+    flags = blob[3]
+    envelope = {0: 0, 1: 32, 2: 48, 3: 48, 4: 64}[(flags >> 1) & 0x07]
+    return shapely.from_wkb(blob[8 + envelope :])
+
+
+def test_gpkg_tables_fields_and_times(out: Path, frames: dict[int, Any]) -> None:
+    db = sqlite3.connect(out / "icgt.gpkg")
+    (app_id,) = db.execute("PRAGMA application_id").fetchone()
+    assert struct.pack(">I", app_id & 0xFFFFFFFF) == b"GPKG"
+    contents = {r[0]: r[1] for r in db.execute("SELECT table_name, data_type FROM gpkg_contents")}
+    assert contents == {"cameras": "features", "footprints": "features", "footprints_face": "features"}
+    query = "SELECT table_name, geometry_type_name, srs_id, z FROM gpkg_geometry_columns"
+    geo = {r[0]: (r[1], r[2], r[3]) for r in db.execute(query)}
+    assert geo["cameras"] == ("POINT", 9707, 1)
+    assert geo["footprints"] == ("POLYGON", 9707, 1)
+    assert geo["footprints_face"][0] == "POLYGON" and geo["footprints_face"][2] == 0
+    columns = [r[1] for r in db.execute("PRAGMA table_info(cameras)")]
+    assert set(RECORD_FIELDS) <= set(columns), set(RECORD_FIELDS) - set(columns)
+    rows = db.execute("SELECT frame_seq, mid_utc, mid_utc_us, alt_msl_m, flags, geom FROM cameras").fetchall()
+    assert len(rows) == len(frames) > 10  # ~45 (5 fps), fewer on a loaded machine
+    for seq, mid_utc, mid_utc_us, alt, flags, geom in rows:
+        rec = frames[seq]
+        assert mid_utc_us == rec.mid_utc_us
+        assert mid_utc == utc_iso(rec.mid_utc_us)[:23] + "Z"  # milliseconds, UTC
+        assert alt == rec.alt_msl_m
+        assert flags == ",".join(rec.flags)
+        point = _gpkg_geometry(geom)
+        assert (point.x, point.y, point.z) == (rec.lon_deg, rec.lat_deg, rec.alt_msl_m)
+
+
+def test_face_footprints_are_valid_polygons(out: Path) -> None:
+    db = sqlite3.connect(out / "icgt.gpkg")
+    face = {seq: _gpkg_geometry(g) for seq, g in db.execute("SELECT frame_seq, geom FROM footprints_face")}
+    areas = dict(db.execute("SELECT frame_seq, area_m2 FROM footprints_face").fetchall())
+    mapped = {seq: _gpkg_geometry(g) for seq, g in db.execute("SELECT frame_seq, geom FROM footprints")}
+    assert len(face) == len(mapped) > 10  # ~45 (5 fps), fewer on a loaded machine
+    for seq, poly in face.items():
+        assert poly.geom_type == "Polygon" and not poly.has_z
+        assert poly.is_valid, shapely.is_valid_reason(poly)
+        assert poly.exterior.is_ccw
+        assert poly.area == pytest.approx(areas[seq], rel=1e-6)
+        assert 0.5 < poly.area < 50.0  # a 24 mm lens 3 m from the face: a few square metres
+    # on the vertical pier face the map outlines collapse: the face coordinates are what keep their area
+    flat = [shapely.Polygon([(x, y) for x, y, _ in p.exterior.coords]).area for p in mapped.values()]
+    assert max(flat) < 1e-12
+
+
+def test_kml_heights_are_absolute_msl(out: Path, frames: dict[int, Any]) -> None:
+    root = ET.parse(out / "icgt.kml").getroot()
+    placemarks = list(root.iter(f"{KML}Placemark"))
+    points = polygons = 0
+    for pm in placemarks:
+        seq = int(pm.find(f".//{KML}SimpleData[@name='frame_seq']").text)
+        for geom in list(pm.iter(f"{KML}Point")) + list(pm.iter(f"{KML}Polygon")):
+            assert geom.find(f"{KML}altitudeMode").text == "absolute"
+        for point in pm.iter(f"{KML}Point"):
+            lon, lat, alt = (float(c) for c in point.find(f"{KML}coordinates").text.strip().split(","))
+            rec = frames[seq]
+            assert (lon, lat, alt) == pytest.approx((rec.lon_deg, rec.lat_deg, rec.alt_msl_m), abs=1e-9)
+            points += 1
+        for poly in pm.iter(f"{KML}Polygon"):
+            coords = poly.find(f".//{KML}coordinates").text.split()
+            assert len(coords) >= 4 and coords[0] == coords[-1]
+            polygons += 1
+    assert points == polygons == len(frames)
+
+
+def test_geojson_still_written(out: Path, frames: dict[int, Any]) -> None:
+    cams = json.loads((out / "cameras.geojson").read_text())
+    assert len(cams["features"]) == len(frames)

@@ -1,0 +1,77 @@
+"""The report's pieces without a flight: link events to outages and losses, the coverage grid."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from icgt.report.plots import coverage_grid
+from icgt.report.summary import FlightData, Loss, Outage, _events
+
+
+def _data() -> FlightData:
+    return FlightData(
+        path=Path("x.mcap"),
+        t0_host_ns=1_000_000_000,
+        duration_s=20.0,
+        frames=[],
+        track_t_s=np.zeros(0),
+        track_enu_m=np.zeros((0, 3)),
+        device_clock=[],
+        utc_clock=[],
+        outages=[],
+        losses=[],
+        status={},
+        metadata={},
+        topics={},
+    )
+
+
+def test_link_events_become_outages_and_losses() -> None:
+    s = 1_000_000_000
+    events = [
+        {"link": "device", "kind": "disconnected", "outage_ns": 0, "detail": "unplugged", "_host": 4 * s},
+        {"link": "mavlink", "kind": "autopilot_lost", "outage_ns": 3 * s, "detail": "no message", "_host": 10 * s},
+        {"link": "mavlink", "kind": "autopilot_back", "outage_ns": 4 * s, "detail": "back", "_host": 11 * s},
+        {"link": "device", "kind": "connected", "outage_ns": 2 * s, "detail": "back", "_host": 5 * s},
+        {"link": "device", "kind": "sequence_gap", "count": 7, "_host": 6 * s},
+        {"link": "device", "kind": "frames_rejected", "count": 2, "_host": 7 * s},
+        {"link": "device", "kind": "disconnected", "outage_ns": 0, "detail": "unplugged again", "_host": 15 * s},
+    ]
+    data = _data()
+    _events(data, events)
+    assert data.outages == [
+        Outage("mavlink", 6.0, 10.0, "no message"),  # silent since 3 s before the lost event (t = 9 s)
+        Outage("device", 3.0, 4.0, "unplugged"),
+        Outage("device", 14.0, 20.0, "unplugged again (not back by the end)"),
+    ]
+    assert data.losses == [Loss("device", 5.0, "sequence_gap", 7), Loss("device", 6.0, "frames_rejected", 2)]
+
+
+def test_coverage_grid_counts_overlaps() -> None:
+    a = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]])
+    b = a + np.array([1.0, 0.0])
+    counts, extent = coverage_grid([a, b], cells=300)
+    assert extent == (0.0, 3.0, 0.0, 1.0)
+    cell = (3.0 / 300) ** 2
+    assert abs(np.sum(counts == 2) * cell - 1.0) < 0.02  # the 1 m^2 both cover
+    assert abs(np.sum(counts >= 1) * cell - 3.0) < 0.03
+
+
+def test_a_recording_without_frames_still_reports(tmp_path: Path) -> None:
+    from icgt.cli import main
+    from icgt.recorder import topics
+    from icgt.recording import McapRecorder
+
+    path = tmp_path / "log.mcap"
+    with McapRecorder(path, fsync=False) as rec:
+        rec.register_json(topics.LINK_EVENTS, "icgt.link_event", {"type": "object"})
+        for i, kind in enumerate(("disconnected", "connected")):
+            event = {"link": "device", "kind": kind, "detail": kind, "count": 0, "outage_ns": i * 10**9}
+            rec.write(topics.LINK_EVENTS, event | {"host_ns": 5 * 10**9 + i * 10**9}, 5 * 10**9 + i * 10**9)
+    out = tmp_path / "report.html"
+    assert main(["report", str(path), "--out", str(out)]) == 0
+    text = out.read_text()
+    assert "Frames (0)" in text and "no camera calibration in the recording" in text
+    assert text.count("<svg") == 4  # no footprints to draw

@@ -40,6 +40,7 @@ __all__ = [
 ]
 
 MIN_VALID_UTC_US = 1_577_836_800_000_000  # 2020-01-01T00:00:00Z: anything earlier is an unset clock
+MAX_VALID_UTC_US = 4_102_444_800_000_000  # 2100-01-01T00:00:00Z: anything later is a broken clock (SITL: 2908)
 GPS_EPOCH_UNIX_S = 315_964_800  # 1980-01-06T00:00:00Z
 GPS_UTC_LEAP_S = 18  # GPS - UTC since 2017-01-01 (no leap second announced since)
 
@@ -216,14 +217,19 @@ class UtcMapper:
         self._ap_resets = autopilot.resets
         self._realtime: tuple[int, int, float] | None = None  # (mono ns, realtime ns, uncertainty us)
         self.ignored_unset = 0
+        self.ignored_implausible = 0
         self.steps = 0
 
     # -- inputs -------------------------------------------------------------------------------
 
     def add_system_time(self, time_unix_usec: int, time_boot_ms: int) -> bool:
-        """SYSTEM_TIME. Returns False (and ignores it) while ``time_unix_usec`` is 0 / before 2020 (no GPS time)."""
+        """SYSTEM_TIME. Returns False (and ignores it) while ``time_unix_usec`` is 0 / before 2020 (no GPS time),
+        and for a clock past 2100 (a simulator's or a corrupt one)."""
         if time_unix_usec < MIN_VALID_UTC_US:
             self.ignored_unset += 1
+            return False
+        if time_unix_usec >= MAX_VALID_UTC_US:
+            self.ignored_implausible += 1
             return False
         if self._source is UtcSource.GPS_TIME:
             return False  # a better source is already in use
@@ -239,6 +245,9 @@ class UtcMapper:
         utc = gps_to_utc_us(gps_week, time_of_week_ms, leap_seconds)
         if utc < MIN_VALID_UTC_US:
             self.ignored_unset += 1
+            return False
+        if utc >= MAX_VALID_UTC_US:
+            self.ignored_implausible += 1
             return False
         if self._source is not UtcSource.GPS_TIME:
             self._samples.clear()  # switch to the better source
@@ -338,6 +347,13 @@ class UtcMapper:
             mono, real, unc = self._realtime
             return UtcEstimate(True, (real + (int(host_ns) - mono)) / 1000.0, unc, UtcSource.HOST_REALTIME, True)
         return _NO_UTC
+
+    def host_realtime_utc_us(self, host_ns: int) -> float | None:
+        """UTC [us] of a host monotonic time by the host's own clock alone (None without a sample)."""
+        if self._realtime is None:
+            return None
+        mono, real, _ = self._realtime
+        return (real + (int(host_ns) - mono)) / 1000.0
 
     def _via_autopilot(self, host_ns: int) -> UtcEstimate | None:
         if self._fit is None:

@@ -468,6 +468,7 @@ class TelemetryStore:
         }
         self._local_epoch = 0
         self._origin: tuple[int, int, int] | None = None
+        self._origin_moved = False
 
     def attach(self, link: MavlinkLink) -> Subscription:
         return link.subscribe(self.ingest, TELEMETRY_TYPES)
@@ -534,7 +535,9 @@ class TelemetryStore:
             if local is None:
                 self._count("invalid")
                 return None
-            if self._local_jumped(local):
+            if self._origin_moved:
+                self._origin_moved = False  # the jump that follows an announced origin change is that change
+            elif self._local_jumped(local):
                 self._local_epoch += 1
                 self._count("local_origin_resets")
             local = dataclasses.replace(local, epoch=self._local_epoch)
@@ -544,6 +547,7 @@ class TelemetryStore:
             origin = (int(msg.latitude), int(msg.longitude), int(msg.altitude))
             if self._origin is not None and origin != self._origin:
                 self._local_epoch += 1  # the EKF moved its origin: local positions restart from it
+                self._origin_moved = True
                 self._count("local_origin_resets")
             self._origin = origin
             return None

@@ -137,6 +137,7 @@ class Synchroniser:
             "frames": 0,
         }
         self._timesync_warned = False
+        self._utc_source = ""  # the UTC source the last poll used, to log each change with its jump
         self._device_t_us = 0  # the latest device time seen since the last HELLO
 
     # ------------------------------------------------------------------ inputs
@@ -227,10 +228,26 @@ class Synchroniser:
                 f"the autopilot answered none of {self.timesync.unanswered} TIMESYNC requests: "
                 "no autopilot clock mapping",
             )
+        self._check_utc_source(now_ns)
         self.geotagger.poll(now_ns, flush=flush)
         ready, self._ready[:] = list(self._ready), []
         self.counts["frames"] += len(ready)
         return ready
+
+    def _check_utc_source(self, now_ns: int) -> None:
+        """Log each change of UTC source with how far the new one is from the host clock (a jump of frames' UTC)."""
+        est = self.utc.host_to_utc(now_ns)
+        source = est.source.value if est.valid else "none"
+        if source == self._utc_source:
+            return
+        previous, self._utc_source = self._utc_source, source
+        if not previous:
+            return
+        host = self.utc.host_realtime_utc_us(now_ns)
+        jump = f"{(est.utc_us - host) / 1e6:+.6f} s from the host clock" if est.valid and host is not None else ""
+        self._event(
+            "utc_source_changed", now_ns, f"UTC now from {source} (was {previous}){': ' + jump if jump else ''}"
+        )
 
     @property
     def pending_frames(self) -> int:
@@ -253,6 +270,10 @@ class Synchroniser:
             "timesync_answered": t.answered,
             "timesync_unanswered": t.unanswered,
             "timesync_foreign": t.foreign,
+            "utc_ignored_unset": self.utc.ignored_unset,
+            "utc_ignored_implausible": self.utc.ignored_implausible,
+            "utc_steps": self.utc.steps,
+            "autopilot_clock_resets": self.autopilot_time.resets,
             "pending_frames": self.pending_frames,
             **{f"telemetry_{k}": v for k, v in self.telemetry.counts().items()},
         }

@@ -237,6 +237,47 @@ def test_garbage_and_callback_errors_never_stop_the_reader(recorder):
         link.stop()
 
 
+def test_a_device_with_our_ids_is_not_taken_for_our_echo(recorder, caplog):
+    """A real camera at component 100 of the vehicle: its frames are passed on and said loudly; our own
+    frames looped back are echoes."""
+    link, port = make_link(recorder, request_rates=False, timesync=False)
+    got: list[Received] = []
+    link.subscribe(got.append, ["HEARTBEAT", "CAMERA_INFORMATION"])
+    link.start()
+    other_camera = AutopilotPeer(port, system=1, component=100)
+    try:
+        other_camera.send(other_camera.mav.heartbeat_encode(mavlink2.MAV_TYPE_CAMERA, 8, 0, 0, 4))
+        assert wait_until(lambda: any(r.src_component == 100 for r in got))
+        assert link.stats().same_id_frames == 1 and link.stats().self_echoes == 0
+        assert any("uses our MAVLink id 1:100" in r.getMessage() for r in caplog.records)
+    finally:
+        other_camera.close()
+        link.stop()
+
+
+def test_other_systems_on_udp_are_passed_on_undecoded(recorder):
+    link, port = make_link(recorder, request_rates=False, timesync=False, decode_systems=frozenset({1}))
+    got: list[Received] = []
+    link.subscribe(got.append)
+    link.start()
+    ap = AutopilotPeer(port)
+    stranger = AutopilotPeer(port, system=42, component=1)
+    try:
+        stranger.send(stranger.mav.attitude_encode(5, 0.1, 0, 0, 0, 0, 0))
+        ap.send(ap.mav.attitude_encode(6, 0.2, 0, 0, 0, 0, 0))
+        assert wait_until(lambda: {r.src_system for r in got} >= {1, 42})
+        mine = next(r for r in got if r.src_system == 1)
+        theirs = next(r for r in got if r.src_system == 42)
+        assert mine.msg.time_boot_ms == 6  # decoded
+        assert theirs.type == "ATTITUDE" and not hasattr(theirs.msg, "time_boot_ms")  # header only
+        assert link.stats().undecoded_frames == 1
+        assert link.receive_buffer_bytes >= 1_000_000
+    finally:
+        stranger.close()
+        ap.close()
+        link.stop()
+
+
 def test_subscribe_queue_is_bounded_and_drops_oldest(recorder):
     link, port = make_link(recorder, request_rates=False, timesync=False)
     q = link.subscribe_queue(["ATTITUDE"], maxsize=3)

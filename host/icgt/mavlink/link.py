@@ -32,6 +32,7 @@ import select
 import socket
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterable
 from typing import Any
 
@@ -216,6 +217,7 @@ class LinkStats:
     callback_errors: int
     queue_drops: int
     self_echoes: int
+    same_id_frames: int
     timesync_sent: int
     undecoded_frames: int
     outages: int
@@ -329,6 +331,9 @@ class MavlinkLink:
         self._callback_errors = 0
         self._queue_drops = 0
         self._self_echoes = 0
+        self._same_id_frames = 0  # frames with our ids that we did not send
+        self._same_id_warned_ns = 0
+        self._recent_sent: deque[bytes] = deque(maxlen=256)  # to tell our echoes from a device with our ids
         self._ts_sent = 0
         self._undecoded = 0
         self.receive_buffer_bytes = 0  # the UDP socket's receive buffer once open [bytes]
@@ -441,6 +446,7 @@ class MavlinkLink:
             try:
                 buf = msg.pack(self._packer, force_mavlink1=force_mavlink1)
                 self._packer.seq = (self._packer.seq + 1) % 256
+                self._recent_sent.append(bytes(buf))
                 conn.write(buf)
             except Exception as exc:
                 self._send_failures += 1
@@ -496,6 +502,7 @@ class MavlinkLink:
                 callback_errors=self._callback_errors,
                 queue_drops=self._queue_drops,
                 self_echoes=self._self_echoes,
+                same_id_frames=self._same_id_frames,
                 timesync_sent=self._ts_sent,
                 undecoded_frames=self._undecoded,
                 outages=self._outages,
@@ -602,9 +609,11 @@ class MavlinkLink:
             return
         src = (rec.src_system, rec.src_component)
         if src == (self.config.system_id, self.config.component_id):
-            with self._lock:
-                self._self_echoes += 1
-            return
+            if bytes(msg.get_msgbuf()) in self._recent_sent:
+                with self._lock:
+                    self._self_echoes += 1
+                return  # our own frame, looped back by a router or a broadcast
+            self._foreign_same_id(rec)
         events: list[LinkEvent] = []
         with self._lock:
             self._by_type[mtype] = self._by_type.get(mtype, 0) + 1
@@ -688,6 +697,26 @@ class MavlinkLink:
             return
         job.ack = result
         job.acked = True
+
+    def _foreign_same_id(self, rec: Received) -> None:
+        """A frame with our system and component id that we did not send: another device (a real camera at
+        component 100?) uses our ids. Said loudly (once every 10 s), counted, and passed on like any message."""
+        now = rec.rx_ns
+        with self._lock:
+            self._same_id_frames += 1
+            n = self._same_id_frames
+            due = now - self._same_id_warned_ns >= 10_000_000_000 or n == 1
+            if due:
+                self._same_id_warned_ns = now
+        if due:
+            log.error(
+                "another device on the vehicle uses our MAVLink id %d:%d (%s, %d frames so far): ground "
+                "stations cannot tell the two apart; give this camera another id ([mavlink] component_id)",
+                self.config.system_id,
+                self.config.component_id,
+                rec.type,
+                n,
+            )
 
     def _count_callback_error(self, what: str) -> None:
         with self._lock:

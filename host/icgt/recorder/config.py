@@ -9,6 +9,7 @@ Every key names its unit. Example (all keys optional; these are the defaults)::
     [mavlink]
     url = "udpin:0.0.0.0:14550"
     system_id = 1                  # the vehicle's system id (the camera component joins it)
+    component_id = 100             # our camera's component id (101-106 if the vehicle has a camera at 100)
     ground_station_systems = [255]
     global_position_hz = 50.0
 
@@ -68,6 +69,7 @@ class DeviceSection:
 class MavlinkSection:
     url: str = "udpin:0.0.0.0:14550"
     system_id: int = 1
+    component_id: int = 100  # MAV_COMP_ID_CAMERA; 101-106 (CAMERA2..6) when the vehicle has a camera at 100
     ground_station_systems: tuple[int, ...] = (255,)
     global_position_hz: float = 50.0
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
 import socket
 import threading
@@ -17,6 +18,8 @@ from pathlib import Path
 from typing import Any
 
 from icgt.errors import IcgtError
+
+log = logging.getLogger(__name__)
 
 Request = dict[str, Any]
 Reply = dict[str, Any]
@@ -86,6 +89,9 @@ class ControlServer:
                     reply = {"error": f"bad request: {exc}"}
                 except IcgtError as exc:
                     reply = {"error": str(exc)}
+                except Exception as exc:  # the server outlives any request, and says what went wrong
+                    log.exception("control request failed")
+                    reply = {"error": f"internal error: {type(exc).__name__}: {exc}"}
                 with contextlib.suppress(OSError):
                     conn.sendall((json.dumps(reply) + "\n").encode())
 

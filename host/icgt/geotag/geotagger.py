@@ -14,9 +14,10 @@ import threading
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Annotated, Protocol
 
 import numpy as np
+from msgspec import Meta
 
 from icgt.errors import IcgtError
 from icgt.geodesy import LocalFrame, q_from_euler_zyx, q_multiply, q_rotate, q_slerp, q_to_euler_zyx
@@ -31,6 +32,10 @@ from icgt.mavlink.telemetry import (
 from icgt.protocol.messages import Exposure, ExposureFlags, Imu, Range, RangeFlags
 
 GPS_FIX_3D = 3
+_Angle = Annotated[float, Meta(ge=-360.0, le=360.0)]
+_Metres = Annotated[float, Meta(ge=-10.0, le=10.0)]  # a camera within 10 m of the autopilot
+_Lat = Annotated[float, Meta(ge=-90.0, le=90.0)]
+_Lon = Annotated[float, Meta(ge=-180.0, le=180.0)]
 
 
 class DeviceClock(Protocol):
@@ -58,30 +63,39 @@ class UtcSource(Protocol):
 
 @dataclass(frozen=True)
 class GeotagConfig:
-    """Camera, mounting and quality limits (the recorder's config file, [camera] and [geotag])."""
+    """Camera, mounting and quality limits (the recorder's config file, [camera]).
 
-    focal_length_mm: float = 35.0
-    sensor_width_mm: float = 35.9
-    image_width_px: int = 7952
-    image_height_px: int = 5304
-    mount_roll_deg: float = 0.0  # camera relative to the body, applied after "camera looks forward"
-    mount_pitch_deg: float = 0.0
-    mount_yaw_deg: float = 0.0
-    lever_arm_body_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # camera from the autopilot (FRD)
+    Each field's unit is in its name; the allowed ranges are declared with the field (checked when a
+    configuration is loaded, `icgt.recorder.config`)."""
+
+    focal_length_mm: Annotated[float, Meta(gt=0.0, le=2000.0)] = 35.0
+    sensor_width_mm: Annotated[float, Meta(gt=0.0, le=200.0)] = 35.9
+    image_width_px: Annotated[int, Meta(ge=1, le=100_000)] = 7952
+    image_height_px: Annotated[int, Meta(ge=1, le=100_000)] = 5304
+    mount_roll_deg: _Angle = 0.0  # camera relative to the body, applied after "camera looks forward"
+    mount_pitch_deg: _Angle = 0.0
+    mount_yaw_deg: _Angle = 0.0
+    lever_arm_body_m: tuple[_Metres, _Metres, _Metres] = (0.0, 0.0, 0.0)  # camera from the autopilot (FRD)
     gimbal_stabilised: bool = False  # a gimbal holds the camera level: only the body's yaw turns it
-    range_min_m: float = 0.5
-    range_max_m: float = 40.0
-    range_stale_ms: float = 50.0
-    stale_pose_ms: float = 100.0  # kept for old config files; the position bound below decides now
-    max_position_error_m: float = 0.10  # a larger bound on the position error flags the frame stale_pose
-    max_gps_gap_s: float = 1.5  # GPS samples farther apart are not interpolated (the local position fills)
-    max_accel_m_s2: float = 3.0  # acceleration the telemetry may not show, for the position bound
-    local_drift_m_per_s: float = 0.05  # drift allowance of the autopilot's local frame since the GPS anchor
-    max_wait_ms: float = 500.0
-    max_clock_uncertainty_us: float = 1000.0  # a worse device->host mapping bound flags the frame
-    blur_limit_px: float = 1.0
+    range_min_m: Annotated[float, Meta(ge=0.0, le=1000.0)] = 0.5
+    range_max_m: Annotated[float, Meta(gt=0.0, le=1000.0)] = 40.0
+    range_stale_ms: Annotated[float, Meta(gt=0.0, le=10_000.0)] = 50.0
+    stale_pose_ms: Annotated[float, Meta(gt=0.0)] = 100.0  # kept for old config files; the bound below decides
+    max_position_error_m: Annotated[float, Meta(gt=0.0)] = 0.10  # a larger position bound flags stale_pose
+    max_gps_gap_s: Annotated[float, Meta(gt=0.0, le=60.0)] = 1.5  # farther apart: not interpolated
+    max_accel_m_s2: Annotated[float, Meta(ge=0.0, le=100.0)] = 3.0  # unseen acceleration, for the bound
+    local_drift_m_per_s: Annotated[float, Meta(ge=0.0, le=10.0)] = 0.05  # local frame drift since the anchor
+    max_wait_ms: Annotated[float, Meta(ge=0.0, le=10_000.0)] = 500.0
+    max_clock_uncertainty_us: Annotated[float, Meta(gt=0.0)] = 1000.0  # a worse device->host bound flags it
+    blur_limit_px: Annotated[float, Meta(gt=0.0)] = 1.0
     surface_normal_enu: tuple[float, float, float] | None = None  # the structure's face, if known
-    origin: tuple[float, float, float] | None = None  # ENU origin lat, lon, alt MSL; else the first fix
+    origin: tuple[_Lat, _Lon, float] | None = None  # ENU origin lat, lon, alt MSL; else the first fix
+
+    def __post_init__(self) -> None:
+        if self.range_min_m >= self.range_max_m:
+            raise ValueError(f"range_min_m ({self.range_min_m}) must be below range_max_m ({self.range_max_m})")
+        if self.surface_normal_enu is not None and math.hypot(*self.surface_normal_enu) < 1e-6:
+            raise ValueError("surface_normal_enu must not be the zero vector")
 
     @property
     def pixel_pitch_mm(self) -> float:

@@ -1,6 +1,12 @@
-"""The recorder's configuration: a TOML file, with the command line overriding the links and output.
+"""The recorder's configuration: one declared schema, a TOML file, the command line overriding links and output.
 
-Every key names its unit. Example (all keys optional; these are the defaults)::
+Every key names its unit (``_s``, ``_hz``, ``_mm``, ``_m``, ``_deg``, ``_px``); every value is checked when
+the file is loaded, before any device or autopilot is contacted, against the range declared with its
+field here (and, for [camera], in `icgt.geotag.GeotagConfig`). The schema is declared with msgspec
+(types, fixed-length arrays, numeric ranges); what a range cannot say (one value against another) is
+checked in ``__post_init__``. An error names the file, the key, the value and what is allowed.
+
+Example (all keys optional; these are the defaults)::
 
     [device]
     url = "/dev/ttyACM0"
@@ -46,70 +52,104 @@ Every key names its unit. Example (all keys optional; these are the defaults)::
 from __future__ import annotations
 
 import dataclasses
+import json
+import re
 import tomllib
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
+
+import msgspec
+from msgspec import Meta
 
 from icgt.errors import IcgtError
 from icgt.geotag import GeotagConfig
+
+__all__ = [
+    "CaptureSection",
+    "ConfigError",
+    "DeviceSection",
+    "MavlinkSection",
+    "OutputSection",
+    "RecorderConfig",
+    "SensorsSection",
+    "load_config",
+    "parse_config",
+]
 
 
 class ConfigError(IcgtError):
     """The recorder configuration is invalid."""
 
 
-@dataclass(frozen=True)
-class DeviceSection:
-    url: str = "/dev/ttyACM0"
+# Limits the firmware enforces (firmware/lib/core: trigger, exposure pairing, BNO055 and LIDAR-Lite
+# drivers) and the wire types of CONFIGURE / START_CAPTURE: refused here, before anything is contacted.
+_SystemId = Annotated[int, Meta(ge=1, le=255)]
+_ComponentId = Annotated[int, Meta(ge=1, le=255)]
+
+
+class _Section(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    pass
+
+
+class DeviceSection(_Section, frozen=True, kw_only=True):
+    url: Annotated[str, Meta(min_length=1)] = "/dev/ttyACM0"
     set_rtc: bool = True
 
 
-@dataclass(frozen=True)
-class MavlinkSection:
-    url: str = "udpin:0.0.0.0:14550"
-    system_id: int = 1
-    component_id: int = 100  # MAV_COMP_ID_CAMERA; 101-106 (CAMERA2..6) when the vehicle has a camera at 100
-    ground_station_systems: tuple[int, ...] = (255,)
-    global_position_hz: float = 50.0
+class MavlinkSection(_Section, frozen=True, kw_only=True):
+    url: Annotated[str, Meta(min_length=1)] = "udpin:0.0.0.0:14550"
+    system_id: _SystemId = 1
+    component_id: _ComponentId = 100  # MAV_COMP_ID_CAMERA; 101-106 (CAMERA2..6) when 100 is taken
+    ground_station_systems: Annotated[tuple[_SystemId, ...], Meta(min_length=1)] = (255,)
+    global_position_hz: Annotated[float, Meta(gt=0.0, le=200.0)] = 50.0
 
 
-@dataclass(frozen=True)
-class CaptureSection:
-    mode: str = "interval"
-    interval_s: float = 0.2
-    focus_lead_s: float = 0.5
-    burst_s: float = 2.0
-    shutter_pulse_s: float = 0.02
+class CaptureSection(_Section, frozen=True, kw_only=True):
+    mode: Literal["interval", "focus_burst"] = "interval"
+    interval_s: Annotated[float, Meta(ge=0.05, le=3600.0)] = 0.2
+    focus_lead_s: Annotated[float, Meta(ge=0.0, le=10.0)] = 0.5
+    burst_s: Annotated[float, Meta(ge=0.0, le=3600.0)] = 2.0
+    shutter_pulse_s: Annotated[float, Meta(ge=0.001, le=1.0)] = 0.02
+
+    def __post_init__(self) -> None:
+        if self.shutter_pulse_s >= self.interval_s:
+            raise ValueError(
+                f"shutter_pulse_s ({self.shutter_pulse_s}) must be shorter than interval_s ({self.interval_s}): "
+                "the line must go inactive between shots"
+            )
+        if self.mode == "focus_burst" and self.burst_s < self.interval_s:
+            raise ValueError(f"burst_s ({self.burst_s}) must be at least interval_s ({self.interval_s}) in focus_burst")
 
 
-@dataclass(frozen=True)
-class SensorsSection:
-    imu_rate_hz: int = 100
-    imu_mode: str = "ndof"
-    range_rate_hz: int = 500
-    lidar_model: str = "v3"
-    lidar_preset: int = 0
-    lidar_bias_every: int = 100
+class SensorsSection(_Section, frozen=True, kw_only=True):
+    imu_rate_hz: Annotated[int, Meta(ge=0, le=100)] = 100  # BNO055 fusion output: 100 Hz at most; 0 off
+    imu_mode: Literal["ndof", "imuplus"] = "ndof"
+    range_rate_hz: Annotated[int, Meta(ge=0, le=500)] = 500  # LIDAR-Lite: 500 Hz at most; 0 off
+    lidar_model: Literal["v3", "v3hp", "none"] = "v3"
+    lidar_preset: Annotated[int, Meta(ge=0, le=6)] = 0  # v3: 0-5, v3HP: 0-6
+    lidar_bias_every: Annotated[int, Meta(ge=1, le=255)] = 100
     feedback: bool = True
-    feedback_timeout_s: float = 0.15
+    feedback_timeout_s: Annotated[float, Meta(ge=0.001, le=2.0)] = 0.15
     feedback_active_high: bool = False
 
+    def __post_init__(self) -> None:
+        if self.lidar_model == "v3" and self.lidar_preset > 5:
+            raise ValueError(f"lidar_preset {self.lidar_preset}: the LIDAR-Lite v3 has presets 0-5")
 
-@dataclass(frozen=True)
-class OutputSection:
+
+class OutputSection(_Section, frozen=True, kw_only=True):
     dir: Path = Path("recordings")
-    chunk_interval_s: float = 1.0
+    chunk_interval_s: Annotated[float, Meta(gt=0.0, le=1.0)] = 1.0  # crash loss <= 1 s
+    file_mode: Annotated[int, Meta(ge=0, le=0o777)] = 0o600  # recordings are private by default
 
 
-@dataclass(frozen=True)
-class RecorderConfig:
-    device: DeviceSection = field(default_factory=DeviceSection)
-    mavlink: MavlinkSection = field(default_factory=MavlinkSection)
-    capture: CaptureSection = field(default_factory=CaptureSection)
-    sensors: SensorsSection = field(default_factory=SensorsSection)
-    camera: GeotagConfig = field(default_factory=GeotagConfig)
-    output: OutputSection = field(default_factory=OutputSection)
+class RecorderConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    device: DeviceSection = msgspec.field(default_factory=DeviceSection)
+    mavlink: MavlinkSection = msgspec.field(default_factory=MavlinkSection)
+    capture: CaptureSection = msgspec.field(default_factory=CaptureSection)
+    sensors: SensorsSection = msgspec.field(default_factory=SensorsSection)
+    camera: GeotagConfig = msgspec.field(default_factory=GeotagConfig)
+    output: OutputSection = msgspec.field(default_factory=OutputSection)
     source: str = "defaults"
 
     def with_overrides(
@@ -117,87 +157,80 @@ class RecorderConfig:
     ) -> RecorderConfig:
         cfg = self
         if device_url:
-            cfg = dataclasses.replace(cfg, device=dataclasses.replace(cfg.device, url=device_url))
+            cfg = msgspec.structs.replace(cfg, device=msgspec.structs.replace(cfg.device, url=device_url))
         if mavlink_url:
-            cfg = dataclasses.replace(cfg, mavlink=dataclasses.replace(cfg.mavlink, url=mavlink_url))
+            cfg = msgspec.structs.replace(cfg, mavlink=msgspec.structs.replace(cfg.mavlink, url=mavlink_url))
         if out_dir is not None:
-            cfg = dataclasses.replace(cfg, output=dataclasses.replace(cfg.output, dir=out_dir))
+            cfg = msgspec.structs.replace(cfg, output=msgspec.structs.replace(cfg.output, dir=out_dir))
         return cfg
 
     def as_text(self) -> str:
-        """The effective configuration, for the log's metadata."""
-        return repr(self)
+        """The effective configuration as JSON (for the log's metadata; `parse_config` reads it back)."""
+        return json.dumps(msgspec.to_builtins(self, enc_hook=str), indent=1, sort_keys=True)
 
 
-def _section(cls: type, data: Any, where: str) -> Any:
-    if not isinstance(data, dict):
-        raise ConfigError(f"{where}: expected a table")
-    names = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - set(names))
-    if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)} (known: {', '.join(sorted(names))})")
-    kwargs: dict[str, Any] = {}
-    for key, value in data.items():
-        default = getattr(cls(), key)
-        if default is None and isinstance(value, list):
-            value = tuple(value)
-        elif isinstance(default, tuple):
-            if not isinstance(value, list):
-                raise ConfigError(f"{where}.{key}: expected a list")
-            value = tuple(value)
-        elif isinstance(default, Path):
-            value = Path(value)
-        elif isinstance(default, bool):
-            if not isinstance(value, bool):
-                raise ConfigError(f"{where}.{key}: expected true or false")
-        elif isinstance(default, float):
-            if not isinstance(value, (int, float)) or isinstance(value, bool):
-                raise ConfigError(f"{where}.{key}: expected a number")
-            value = float(value)
-        elif isinstance(default, int) and (not isinstance(value, int) or isinstance(value, bool)):
-            raise ConfigError(f"{where}.{key}: expected an integer")
-        elif isinstance(default, str) and not isinstance(value, str):
-            raise ConfigError(f"{where}.{key}: expected a string")
-        kwargs[key] = value
-    return cls(**kwargs)
+def _dec_hook(kind: type, value: Any) -> Any:
+    if kind is Path:
+        if isinstance(value, str) and value:
+            return Path(value)
+        raise ValueError(f"expected a path (a non-empty string), got {type(value).__name__}")
+    raise NotImplementedError(f"{kind}")
 
 
-def load_config(path: Path | None) -> RecorderConfig:
-    """Read a config file (None: defaults). Errors name the file and the key."""
-    if path is None:
-        cfg = RecorderConfig()
-    else:
+_AT = re.compile(r"^(?P<why>.*?)(?: - at `\$(?P<path>[^`]*)`)?$")
+
+
+def _lookup(data: Any, path: str) -> tuple[bool, Any]:
+    """The raw value at a msgspec error path such as `.capture.interval_s` or `.camera.lever_arm_body_m[1]`."""
+    value = data
+    for part in re.findall(r"\.([A-Za-z_][A-Za-z0-9_]*)|\[(\d+)\]", path):
+        key, index = part
         try:
-            raw = tomllib.loads(path.read_text(encoding="utf-8"))
-        except OSError as exc:
-            raise ConfigError(f"cannot read config {path}: {exc.strerror}") from exc
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"{path}: {exc}") from exc
-        sections = {
-            "device": DeviceSection,
-            "mavlink": MavlinkSection,
-            "capture": CaptureSection,
-            "sensors": SensorsSection,
-            "camera": GeotagConfig,
-            "output": OutputSection,
-        }
-        unknown = sorted(set(raw) - set(sections))
-        if unknown:
-            raise ConfigError(f"{path}: unknown section(s) {', '.join(unknown)}")
-        parts = {name: _section(cls, raw.get(name, {}), f"{path}: [{name}]") for name, cls in sections.items()}
-        cfg = RecorderConfig(**parts, source=str(path))
-    _validate(cfg)
+            value = value[key] if key else value[int(index)]
+        except (KeyError, IndexError, TypeError):
+            return False, None
+    return True, value
+
+
+def _explain(exc: msgspec.ValidationError, data: Any, source: str) -> ConfigError:
+    m = _AT.match(str(exc))
+    why = m.group("why") if m else str(exc)
+    path = (m.group("path") if m else None) or ""
+    parts = [p for p in re.split(r"\.", path) if p]
+    where = f"[{parts[0]}] {'.'.join(parts[1:])}" if len(parts) > 1 else (f"[{parts[0]}]" if parts else "")
+    found, value = _lookup(data, path)
+    shown = f" = {value!r}" if found and not isinstance(value, dict) else ""
+    why = why.replace("Object contains unknown field", "unknown key").replace("Expected", "expected")
+    return ConfigError(f"{source}: {where}{shown}: {why}" if where else f"{source}: {why}")
+
+
+def parse_config(data: dict[str, Any], source: str) -> RecorderConfig:
+    """A configuration from parsed TOML (or JSON) `data`; ConfigError names the key, the value and the rule."""
+    camera = data.get("camera")
+    if isinstance(camera, dict):
+        known = {f.name for f in dataclasses.fields(GeotagConfig)}
+        unknown = sorted(set(camera) - known)
+        if unknown:  # msgspec ignores unknown fields of dataclasses; the other sections refuse them
+            raise ConfigError(
+                f"{source}: [camera] unknown key(s) {', '.join(unknown)} (known: {', '.join(sorted(known))})"
+            )
+    try:
+        cfg = msgspec.convert({**data, "source": source}, RecorderConfig, dec_hook=_dec_hook)
+    except msgspec.ValidationError as exc:
+        raise _explain(exc, data, source) from None
     return cfg
 
 
-def _validate(cfg: RecorderConfig) -> None:
-    if cfg.capture.mode not in ("interval", "focus_burst"):
-        raise ConfigError(f"{cfg.source}: [capture] mode must be interval or focus_burst, not {cfg.capture.mode!r}")
-    if cfg.sensors.imu_mode not in ("ndof", "imuplus"):
-        raise ConfigError(f"{cfg.source}: [sensors] imu_mode must be ndof or imuplus")
-    if cfg.sensors.lidar_model not in ("v3", "v3hp", "none"):
-        raise ConfigError(f"{cfg.source}: [sensors] lidar_model must be v3, v3hp or none")
-    if not 0.05 <= cfg.capture.interval_s <= 3600:
-        raise ConfigError(f"{cfg.source}: [capture] interval_s must be 0.05 .. 3600 s")
-    if cfg.output.chunk_interval_s <= 0 or cfg.output.chunk_interval_s > 1.0:
-        raise ConfigError(f"{cfg.source}: [output] chunk_interval_s must be in (0, 1] s (crash loss <= 1 s)")
+def load_config(path: Path | None) -> RecorderConfig:
+    """Read a config file (None: defaults). Errors name the file, the key and the value."""
+    if path is None:
+        return RecorderConfig()
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ConfigError(f"cannot read config {path}: {exc.strerror}") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not UTF-8 text ({exc.reason})") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: {exc}") from exc
+    return parse_config(raw, str(path))

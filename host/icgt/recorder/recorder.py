@@ -15,6 +15,8 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import math
+import os
 import threading
 import time
 from collections import deque
@@ -141,6 +143,7 @@ class Recorder:
         stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
         path = cfg.output.dir / f"icgt_{stamp}.mcap"
         self.mcap = McapRecorder(path, max_chunk_interval_s=cfg.output.chunk_interval_s)
+        os.chmod(path, cfg.output.file_mode)  # private by default ([output] file_mode)
         # Until the autopilot has GPS time, UTC comes from this computer's clock (flagged as such): the
         # same fixed offset as the log times, which the recompute reads back from icgt.time_bases.
         self.sync.on_host_realtime(0, self._mono_to_utc_ns)
@@ -375,10 +378,14 @@ class Recorder:
 
     # ------------------------------------------------------------------ capture commands
     def start_capture(self, interval_s: float | None = None, count: int = 0) -> None:
-        """Start triggering: `count` 0 runs until stopped, 1 is a single shot, N stops after N."""
+        """Start triggering: `count` 0 runs until stopped, 1 is a single shot, N stops after N.
+
+        Raises CaptureRequestError (naming the limit) for a value the device would refuse, before
+        anything is sent."""
         assert self.device is not None
         c = self.config.capture
-        interval_us = int((interval_s if interval_s and interval_s > 0 else c.interval_s) * 1e6)
+        interval_s, count = check_capture_request(interval_s, count, c.shutter_pulse_s)
+        interval_us = int((interval_s if interval_s is not None else c.interval_s) * 1e6)
         if count == 1:
             mode = CaptureMode.SINGLE
         elif count > 1:
@@ -411,7 +418,7 @@ class Recorder:
     def _handler_result(self, action: Any) -> CommandResult:
         try:
             action()
-        except CommandRefusedError as exc:
+        except (CommandRefusedError, CaptureRequestError) as exc:
             log.warning("%s", exc)
             return CommandResult.DENIED
         except DeviceLinkError as exc:
@@ -664,14 +671,44 @@ class Recorder:
         if command == "status":
             return {"ok": True, "status": asdict(self.status())}
         if command == "start":
-            interval = request.get("interval_s")
-            count = int(request.get("count", 0))
-            self.start_capture(float(interval) if interval else None, count)
+            self.start_capture(request.get("interval_s"), request.get("count", 0))
             return {"ok": True}
         if command == "stop":
             self.stop_capture()
             return {"ok": True}
         return {"error": f"unknown command {command!r} (start, stop, status)"}
+
+
+class CaptureRequestError(IcgtError):
+    """A start-capture request (control socket, ground station, command line) with a value out of range."""
+
+
+MIN_INTERVAL_S = 0.05  # the firmware's trigger: 20 fps at most
+MAX_INTERVAL_S = 3600.0
+MAX_COUNT = 0xFFFF  # START_CAPTURE.count is a u16
+
+
+def check_capture_request(interval_s: Any, count: Any, shutter_pulse_s: float) -> tuple[float | None, int]:
+    """(interval [s] or None for the configured one, count) checked against the device's limits."""
+    if interval_s is not None:
+        if isinstance(interval_s, bool) or not isinstance(interval_s, int | float) or not math.isfinite(interval_s):
+            raise CaptureRequestError(f"interval_s {interval_s!r}: a number of seconds between shots is needed")
+        if not MIN_INTERVAL_S <= interval_s <= MAX_INTERVAL_S:
+            raise CaptureRequestError(
+                f"interval_s {interval_s}: allowed {MIN_INTERVAL_S} .. {MAX_INTERVAL_S} s (the trigger's limits)"
+            )
+        if shutter_pulse_s >= interval_s:
+            raise CaptureRequestError(
+                f"interval_s {interval_s}: must be longer than the shutter pulse ({shutter_pulse_s} s)"
+            )
+    if isinstance(count, bool) or not isinstance(count, int):
+        if isinstance(count, float) and count.is_integer() and math.isfinite(count):
+            count = int(count)
+        else:
+            raise CaptureRequestError(f"count {count!r}: a whole number of shots is needed (0: until stopped)")
+    if not 0 <= count <= MAX_COUNT:
+        raise CaptureRequestError(f"count {count}: allowed 0 (until stopped) .. {MAX_COUNT}")
+    return (float(interval_s) if interval_s is not None else None), count
 
 
 def _timesync_status(counters: dict[str, int]) -> str:
@@ -692,7 +729,9 @@ class _CaptureHandler:
         self._r = recorder
 
     def start(self, interval_s: float, count: int) -> CommandResult:
-        return self._r._handler_result(lambda: self._r.start_capture(interval_s, count))
+        # MAV_CMD_IMAGE_START_CAPTURE: interval 0 asks for the camera's own (the configured one).
+        interval = None if interval_s == 0 else interval_s
+        return self._r._handler_result(lambda: self._r.start_capture(interval, count))
 
     def stop(self) -> CommandResult:
         return self._r._handler_result(self._r.stop_capture)

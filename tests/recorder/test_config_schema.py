@@ -1,0 +1,159 @@
+"""The recorder's configuration schema: every key refuses bad values with the key, the value and the rule named,
+before anything is contacted (parsing is pure); the start-capture request is checked the same way."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from icgt.recorder.config import ConfigError, RecorderConfig, load_config, parse_config
+from icgt.recorder.recorder import CaptureRequestError, check_capture_request
+
+BAD: list[tuple[str, str, object]] = [
+    ("device", "url", ""),
+    ("device", "set_rtc", "yes"),
+    ("mavlink", "url", ""),
+    ("mavlink", "system_id", 300),
+    ("mavlink", "system_id", 0),
+    ("mavlink", "component_id", 256),
+    ("mavlink", "ground_station_systems", ["x"]),
+    ("mavlink", "ground_station_systems", []),
+    ("mavlink", "global_position_hz", 1e9),
+    ("mavlink", "global_position_hz", 0),
+    ("capture", "mode", "burst"),
+    ("capture", "interval_s", 0.0),
+    ("capture", "interval_s", -1.0),
+    ("capture", "interval_s", math.inf),
+    ("capture", "focus_lead_s", 11.0),
+    ("capture", "burst_s", -2.0),
+    ("capture", "shutter_pulse_s", 0.0),
+    ("sensors", "imu_rate_hz", 200),
+    ("sensors", "imu_rate_hz", 1.5),
+    ("sensors", "imu_mode", "amg"),
+    ("sensors", "range_rate_hz", 501),
+    ("sensors", "lidar_model", "v4"),
+    ("sensors", "lidar_preset", 9),
+    ("sensors", "lidar_bias_every", 0),
+    ("sensors", "feedback", 1),
+    ("sensors", "feedback_timeout_s", 0.0),
+    ("sensors", "feedback_timeout_s", 5.0),
+    ("sensors", "feedback_active_high", "no"),
+    ("camera", "focal_length_mm", 0),
+    ("camera", "sensor_width_mm", -1.0),
+    ("camera", "image_width_px", 0),
+    ("camera", "image_height_px", 2.5),
+    ("camera", "mount_pitch_deg", 400.0),
+    ("camera", "lever_arm_body_m", [1.0, 2.0]),
+    ("camera", "lever_arm_body_m", [0.0, 0.0, 50.0]),
+    ("camera", "gimbal_stabilised", "true"),
+    ("camera", "range_min_m", -1.0),
+    ("camera", "range_max_m", 0.0),
+    ("camera", "max_wait_ms", -5.0),
+    ("camera", "surface_normal_enu", [0.0, 0.0]),
+    ("camera", "origin", [95.0, 0.0, 0.0]),
+    ("output", "chunk_interval_s", 5.0),
+    ("output", "chunk_interval_s", 0.0),
+    ("output", "dir", 5),
+    ("output", "file_mode", 0o1777),
+]
+
+
+@pytest.mark.parametrize(("section", "key", "value"), BAD, ids=[f"{s}.{k}={v!r}" for s, k, v in BAD])
+def test_every_bad_value_is_refused_naming_the_key(section: str, key: str, value: object) -> None:
+    with pytest.raises(ConfigError) as err:
+        parse_config({section: {key: value}}, "flight.toml")
+    text = str(err.value)
+    assert text.startswith("flight.toml: ") and f"[{section}]" in text and key in text, text
+
+
+def test_every_key_of_every_section_is_in_the_table() -> None:
+    import dataclasses
+
+    import msgspec
+
+    cfg = RecorderConfig()
+    keys = {(s, k) for s, k, _ in BAD}
+    for section in ("device", "mavlink", "capture", "sensors", "output"):
+        for name in msgspec.structs.fields(getattr(cfg, section)):
+            assert (section, name.name) in keys, f"no bad-value case for [{section}] {name.name}"
+    checked_camera = {k for s, k, _ in BAD if s == "camera"}
+    unchecked = {f.name for f in dataclasses.fields(cfg.camera)} - checked_camera
+    # free-valued camera fields (angles are checked through mount_pitch_deg, limits through max_wait_ms)
+    assert unchecked <= {
+        "mount_roll_deg",
+        "mount_yaw_deg",
+        "range_stale_ms",
+        "stale_pose_ms",
+        "max_position_error_m",
+        "max_gps_gap_s",
+        "max_accel_m_s2",
+        "local_drift_m_per_s",
+        "max_clock_uncertainty_us",
+        "blur_limit_px",
+    }, unchecked
+
+
+def test_values_against_each_other() -> None:
+    with pytest.raises(ConfigError, match="shutter_pulse_s .* shorter than interval_s"):
+        parse_config({"capture": {"interval_s": 0.1, "shutter_pulse_s": 0.2}}, "f")
+    with pytest.raises(ConfigError, match="burst_s .* at least interval_s"):
+        parse_config({"capture": {"mode": "focus_burst", "interval_s": 0.5, "burst_s": 0.2}}, "f")
+    with pytest.raises(ConfigError, match="range_min_m"):
+        parse_config({"camera": {"range_min_m": 10.0, "range_max_m": 5.0}}, "f")
+    with pytest.raises(ConfigError, match="presets 0-5"):
+        parse_config({"sensors": {"lidar_model": "v3", "lidar_preset": 6}}, "f")
+
+
+def test_unknown_sections_and_keys_are_refused() -> None:
+    with pytest.raises(ConfigError, match="unknown key `camra`"):
+        parse_config({"camra": {}}, "f")
+    with pytest.raises(ConfigError, match=r"\[capture\].*unknown key `intervall_s`"):
+        parse_config({"capture": {"intervall_s": 0.2}}, "f")
+    with pytest.raises(ConfigError, match=r"\[camera\] unknown key\(s\) focal_mm"):
+        parse_config({"camera": {"focal_mm": 24.0}}, "f")
+
+
+def test_a_good_file_loads_and_its_text_reads_back(tmp_path: Path) -> None:
+    path = tmp_path / "r.toml"
+    path.write_text(
+        '[mavlink]\nsystem_id = 3\ncomponent_id = 101\n[camera]\nlever_arm_body_m = [0.25, 0.0, 0.12]\n'
+        '[output]\ndir = "out"\nfile_mode = 0o640\n'
+    )
+    cfg = load_config(path)
+    assert (cfg.mavlink.system_id, cfg.mavlink.component_id) == (3, 101)
+    assert cfg.camera.lever_arm_body_m == (0.25, 0.0, 0.12) and cfg.output.dir == Path("out")
+    import json
+
+    again = parse_config({k: v for k, v in json.loads(cfg.as_text()).items() if k != "source"}, "again")
+    assert again.mavlink == cfg.mavlink and again.camera == cfg.camera
+
+
+def test_unreadable_files_are_clear_errors(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="cannot read config"):
+        load_config(tmp_path / "missing.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[capture\n")
+    with pytest.raises(ConfigError, match="bad.toml"):
+        load_config(bad)
+    binary = tmp_path / "bin.toml"
+    binary.write_bytes(b"\xff\xfe\x00")
+    with pytest.raises(ConfigError, match="not UTF-8"):
+        load_config(binary)
+
+
+@pytest.mark.parametrize(
+    ("interval", "count"),
+    [(math.inf, 0), (math.nan, 0), (-1.0, 0), (0.0, 0), (0.01, 0), (1e6, 0), ("x", 0), (None, -5), (None, 1e400),
+     (None, 70_000), (None, 2.5), (None, True), (0.015, 0)],
+)  # fmt: skip
+def test_capture_requests_out_of_range_are_refused_naming_the_limit(interval: object, count: object) -> None:
+    with pytest.raises(CaptureRequestError):
+        check_capture_request(interval, count, shutter_pulse_s=0.02)
+
+
+def test_good_capture_requests_pass() -> None:
+    assert check_capture_request(None, 0, 0.02) == (None, 0)
+    assert check_capture_request(0.05, 10, 0.02) == (0.05, 10)
+    assert check_capture_request(2, 1.0, 0.02) == (2.0, 1)

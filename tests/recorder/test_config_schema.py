@@ -96,9 +96,9 @@ def test_every_key_of_every_section_is_in_the_table() -> None:
 
 
 def test_values_against_each_other() -> None:
-    with pytest.raises(ConfigError, match="shutter_pulse_s .* shorter than interval_s"):
+    with pytest.raises(ConfigError, match=r"shutter_pulse_s .* shorter than interval_s"):
         parse_config({"capture": {"interval_s": 0.1, "shutter_pulse_s": 0.2}}, "f")
-    with pytest.raises(ConfigError, match="burst_s .* at least interval_s"):
+    with pytest.raises(ConfigError, match=r"burst_s .* at least interval_s"):
         parse_config({"capture": {"mode": "focus_burst", "interval_s": 0.5, "burst_s": 0.2}}, "f")
     with pytest.raises(ConfigError, match="range_min_m"):
         parse_config({"camera": {"range_min_m": 10.0, "range_max_m": 5.0}}, "f")
@@ -118,7 +118,7 @@ def test_unknown_sections_and_keys_are_refused() -> None:
 def test_a_good_file_loads_and_its_text_reads_back(tmp_path: Path) -> None:
     path = tmp_path / "r.toml"
     path.write_text(
-        '[mavlink]\nsystem_id = 3\ncomponent_id = 101\n[camera]\nlever_arm_body_m = [0.25, 0.0, 0.12]\n'
+        "[mavlink]\nsystem_id = 3\ncomponent_id = 101\n[camera]\nlever_arm_body_m = [0.25, 0.0, 0.12]\n"
         '[output]\ndir = "out"\nfile_mode = 0o640\n'
     )
     cfg = load_config(path)
@@ -135,7 +135,7 @@ def test_unreadable_files_are_clear_errors(tmp_path: Path) -> None:
         load_config(tmp_path / "missing.toml")
     bad = tmp_path / "bad.toml"
     bad.write_text("[capture\n")
-    with pytest.raises(ConfigError, match="bad.toml"):
+    with pytest.raises(ConfigError, match=r"bad\.toml"):
         load_config(bad)
     binary = tmp_path / "bin.toml"
     binary.write_bytes(b"\xff\xfe\x00")

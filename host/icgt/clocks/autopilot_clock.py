@@ -29,7 +29,7 @@ from dataclasses import asdict, dataclass
 from enum import Enum
 from typing import Protocol
 
-from icgt.clocks.device_clock import ClockNotSyncedError, ExchangeStatus, _TwoWayClock, _TwoWayLine
+from icgt.clocks.two_way import ClockNotSyncedError, ExchangeStatus, _TwoWayClock, _TwoWayLine
 
 __all__ = [
     "AutopilotClockFilter",

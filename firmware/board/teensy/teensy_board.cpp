@@ -105,7 +105,7 @@ void TeensyI2cBus::begin() {
   // layer does not use, and both Teensy Wire libraries bound their own bus waits internally
   // (a stuck bus ends the transfer with code 4 after about 16 ms and a 9-clock recovery),
   // which is the hal's "bounded by the bus timeout". The loop's I2C budget
-  // (core::App, kI2cLoopShare) keeps such 16 ms stalls rare.
+  // (core::App::kI2cSharePercent) keeps such 16 ms stalls to a quarter of the loop.
 }
 
 hal::I2cStatus TeensyI2cBus::map_end_transmission(uint8_t code) {

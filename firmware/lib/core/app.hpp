@@ -46,7 +46,7 @@ struct DeviceConfig {
   uint8_t imu_mode = 0x0C;  // NDOF
   bool imu_ext_crystal = false;
   // A v3 at its default preset delivers ~230-256 Hz (3.7 ms acquisitions, Garmin: 270 Hz typical,
-  // less the polls and the loop): 200 Hz is met every time (test_app "RangeRate...").
+  // less the polls and the loop): 200 Hz is met every time (test_app AppTiming tests).
   uint16_t range_rate_hz = 200;
   proto::LidarModel lidar_model = proto::LidarModel::v3;
   uint8_t lidar_preset = 0;
@@ -72,8 +72,8 @@ class App {
   // positive. Over any window T the loop spends at most T * 25 % + kI2cBurstUs + one
   // transfer on I2C: with a stuck bus (16 ms per failed transfer on both Teensy cores) that
   // is one transfer per 64 ms instead of a loop stalled 16 ms out of every 16. The default
-  // sensors (BNO055 at 100 Hz, LIDAR-Lite v3 at 250 Hz) use about 15 % on a 400 kHz bus
-  // (measured in the simulator: test_app "I2cShare...").
+  // sensors (BNO055 at 100 Hz, LIDAR-Lite v3 at 200 Hz) use about 18 % on a 400 kHz bus
+  // (the simulator's bus timing: test_app AppTiming.DefaultRangeRateIsDelivered...).
   static constexpr uint32_t kI2cSharePercent = 25;
   static constexpr uint32_t kI2cBurstUs = 2'000;
 

@@ -65,6 +65,7 @@ firmware-checks:
 	firmware/cross/check_no_arduino.sh
 	firmware/cross/build.sh cortex-m4 cortex-m7
 	firmware/cross/check_board_layer.sh
+	firmware/cross/isr_stamp_latency.sh
 
 test: venv build lint fuzz firmware-checks
 	ctest --test-dir $(BUILD) --output-on-failure

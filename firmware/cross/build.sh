@@ -9,7 +9,8 @@
 #   - FAILS if flash > 64 KiB or static RAM > 32 KiB (whole image, probe included);
 #   - FAILS if the image could allocate: malloc & co. are wrapped to symbols that do not
 #     exist (-Wl,--wrap), so any call fails the link naming its caller; then nm must find no
-#     allocator, no operator new, and no operator delete but cross_runtime.cpp's trap.
+#     allocator, no operator new and no operator delete in the image (the hal's destructors
+#     are protected and non-virtual, so no deleting destructor references one).
 #     Wrapping rather than a trapping malloc: a trap only fires on the path a test happens to
 #     run, the link fails for every caller, including calls made only after start-up. Since
 #     nothing may allocate at all, "after start-up" needs no separate treatment;
@@ -79,13 +80,9 @@ build_one() {
   fi
 
   # --- heap check -----------------------------------------------------------------------
-  local allowed found bad=""
-  allowed="$(arm-none-eabi-nm --defined-only "$out/probe/cross_size_probe_main.o" "$out/probe/cross_cross_runtime.o" \
-             | awk '{print $NF}' | grep -E '^_Zd[la]' || true)"
+  local found bad=""
   found="$(arm-none-eabi-nm "$elf" | awk '{print $NF}' | grep -E "$HEAP_SYMBOLS_RE" | sort -u || true)"
-  for sym in $found; do
-    grep -qxF "$sym" <<< "$allowed" || bad+=" $sym"
-  done
+  for sym in $found; do bad+=" $sym"; done
   if [ -n "$bad" ]; then
     echo "FAIL: $cpu: the image contains heap functions:$bad" >&2
     echo "      (callers: arm-none-eabi-nm -u build/cross/$cpu/core/*.o | grep -E '$HEAP_SYMBOLS_RE')" >&2
@@ -100,8 +97,7 @@ build_one() {
     echo "$core_refs" >&2
     return 1
   fi
-  echo "heap check: core references no heap function; image has no allocator, no operator new,"
-  echo "            and operator delete only as cross_runtime.cpp's trap (stubs' deleting destructors)"
+  echo "heap check: core references no heap function; image has no allocator, no operator new, no operator delete"
 
   # --- size and budgets -------------------------------------------------------------------
   arm-none-eabi-size "$elf"

@@ -131,15 +131,7 @@ __attribute__((section(".isr_vector"), used)) void (*const g_vectors[16])() = {
 
 }  // extern "C"
 
-// Every concrete HAL class (here the probe's stubs; on the Teensy the board layer) inherits a
-// public virtual destructor from its hal interface, so the compiler emits a "deleting
-// destructor" into its vtable that calls operator delete: the image references it although
-// nothing is ever deleted. (The core's own objects reference no heap function at all.) Defining it here (as a trap) keeps
-// libstdc++'s version, which calls free(), out of the image; build.sh checks that these two
-// are the only heap-related symbols present and that they come from this file.
-void operator delete(void*) noexcept {
-  icgt::cross::trap(icgt::cross::ExitCode::heap_used, "FAULT: operator delete called\n");
-}
-void operator delete(void*, std::size_t) noexcept {
-  icgt::cross::trap(icgt::cross::ExitCode::heap_used, "FAULT: operator delete called\n");
-}
+// No operator delete here: the hal's interfaces have protected non-virtual destructors, so no
+// HAL class (the probe's stubs, the board layer) has a deleting destructor and nothing
+// references operator delete. Should one appear, libstdc++'s version would bring free(),
+// which the --wrap in build.sh turns into a link failure naming the caller.

@@ -14,7 +14,7 @@ enum class ExitCode : int {
   ok = 0,
   check_failed = 1,  // the image ran but its own checks failed
   fault = 3,         // HardFault / MemManage / BusFault / UsageFault / NMI
-  heap_used = 4,     // operator delete was reached (see cross_runtime.cpp)
+  heap_used = 4,     // no longer raised: nothing can reach operator delete (cross_runtime.cpp)
   pure_virtual = 5,  // a pure virtual function was called
 };
 

@@ -33,7 +33,12 @@ struct SimBoardConfig {
   CameraModelConfig camera{};
   bool pps_wired = false;
   int64_t rtc_utc_s_at_boot = 1'795'000'000;  // negative: the RTC lost power
-  uint32_t loop_period_us = 100;               // main loop cadence (a Teensy loop with I2C ~ 100 us)
+  // Main loop cadence without I2C work (an idle Teensy loop is far faster; the loop's own
+  // work is not modelled). I2C transfers add their bus time (i2c_timing) to the iteration
+  // that makes them, and interrupts due meanwhile fire at their exact times.
+  uint32_t loop_period_us = 100;
+  I2cTiming i2c_timing{};
+  bool i2c_takes_time = true;  // false: transfers take no virtual time (the old model)
 };
 
 class SimBoard {
@@ -55,8 +60,17 @@ class SimBoard {
   [[nodiscard]] CameraModel& camera() { return camera_; }
   [[nodiscard]] RecordingDigitalOut& shutter() { return shutter_; }
   [[nodiscard]] RecordingDigitalOut& focus() { return focus_; }
+  // Main-loop iterations run so far, and the virtual time they spent [us] (I2C included).
+  [[nodiscard]] uint64_t loop_iterations() const { return loop_iterations_; }
+  [[nodiscard]] uint64_t loop_busy_us() const { return loop_busy_us_; }
 
  private:
+  // Fires every interrupt due up to t_us in time order, then moves the clock to t_us (the
+  // time an I2C transfer blocks the loop: interrupts still run meanwhile, as on the chip).
+  void pass_time(uint64_t t_us);
+  [[nodiscard]] uint64_t next_irq_t_us() const;
+  void fire_next_irq(uint64_t t_us);
+
   SimBoardConfig cfg_;
   VirtualClock clock_;
   SimI2cBus bus_;
@@ -72,6 +86,8 @@ class SimBoard {
   std::unique_ptr<core::App> app_;
   std::vector<LineSample> pps_edges_;
   uint64_t next_loop_t_us_ = 0;
+  uint64_t loop_iterations_ = 0;
+  uint64_t loop_busy_us_ = 0;
 };
 
 }  // namespace icgt::sim

@@ -286,6 +286,29 @@ int main(int argc, char** argv) {
       link.set_impairment(imp);
       return "ok";
     }
+    if (cmd == "i2c") {
+      // i2c stuck on|off: a part holds SDA low; i2c stretch ADDR US: the part at ADDR (hex or
+      // decimal 7-bit address) holds SCL US microseconds per transfer (0: never).
+      std::string what;
+      in >> what;
+      if (what == "stuck") {
+        std::string onoff;
+        in >> onoff;
+        if (onoff != "on" && onoff != "off") return "error: i2c stuck on|off";
+        board.bus().set_stuck(onoff == "on");
+        return "ok";
+      }
+      if (what == "stretch") {
+        std::string addr_text;
+        long us = -1;
+        if (!(in >> addr_text >> us) || us < 0) return "error: i2c stretch ADDR US";
+        const long addr = std::strtol(addr_text.c_str(), nullptr, 0);
+        if (addr < 0x08 || addr > 0x77) return "error: i2c stretch: address out of range 0x08..0x77";
+        board.bus().set_clock_stretch(static_cast<uint8_t>(addr), static_cast<uint32_t>(us));
+        return "ok";
+      }
+      return "error: i2c stuck on|off | i2c stretch ADDR US";
+    }
     return "error: unknown command " + cmd;
   };
 

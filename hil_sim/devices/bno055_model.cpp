@@ -198,9 +198,14 @@ void Bno055Model::write_register(uint8_t addr, uint8_t value, uint64_t now_us) {
   auto& r = regs_[0];
   switch (addr) {
     case kRegOprMode: {
+      // Datasheet: bits 3..0 are the mode, 7..4 reserved. A write replaces the whole byte, so
+      // the power-up 0x10 is gone after the first accepted write: NDOF reads back 0x0C (what
+      // Adafruit's getMode() returns on a part), not 0x1C.
       const uint8_t m = value & 0x0F;
-      if (m > kModeMax || m == mode()) return;
-      r[kRegOprMode] = kOprReservedBits | m;
+      if (m > kModeMax) return;
+      const bool same_mode = m == mode();
+      r[kRegOprMode] = m;
+      if (same_mode) return;  // no mode switch: nothing restarts
       mode_ready_t_us_ = now_us + (m == kModeConfig ? config_.to_config_time_us : config_.from_config_time_us);
       data_tick_ = UINT64_MAX;
       return;

@@ -12,7 +12,9 @@
 //    PAGE_ID are honoured in any mode;
 //  - AXIS_MAP and PWR_MODE are stored and read back but do not alter the data;
 //  - UNIT_SEL bit 7 (orientation convention) is stored but does not alter the Euler angles;
-//  - OPR_MODE keeps its reserved bit 4 set (reads 0x10 | mode); mode values above 0x0C are ignored.
+//  - OPR_MODE reads 0x10 after power-up and reset (reserved bit 4, observed on a bench unit,
+//    sensors.md §1); bits 7..4 are reserved (datasheet) and a write replaces the byte, so after
+//    the first accepted write it reads the mode alone (NDOF: 0x0C). Modes above 0x0C are ignored.
 #pragma once
 
 #include <array>

@@ -26,6 +26,8 @@ constexpr uint64_t kNever = UINT64_MAX;
 
 LidarLiteModel::LidarLiteModel(const LidarLiteModelConfig& config) : cfg_(config), rng_(config.seed) {
   const bool v3 = cfg_.variant == LidarLiteVariant::v3;
+  if (cfg_.conversion_us == 0) cfg_.conversion_us = v3 ? kV3ConversionUs : kV3hpConversionUs;
+  unavailable_until_us_ = cfg_.power_on_t_us + cfg_.reset_us;  // booting after power-up
   access_[kRegAcqCommand] = command;
   for (uint8_t r : {kRegStatus, kRegSignalStrength, kRegDistanceHigh, kRegDistanceLow, kRegUnitIdHigh, kRegUnitIdLow,
                     uint8_t{0x0C}, uint8_t{0x0D}}) {

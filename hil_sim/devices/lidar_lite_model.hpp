@@ -14,7 +14,8 @@
 //  - Reads work after either a STOP or a repeated start (both are recorded).
 //  - Undefined registers read 0x00; writes to them, to read-only registers and unknown
 //    commands are ignored (and counted).
-//  - 0x00 <- 0x00 resets: defaults reloaded, then every transfer NACKs for reset_us.
+//  - Power-up (at power_on_t_us) and 0x00 <- 0x00 (reset): defaults reloaded, then every
+//    transfer NACKs for reset_us (~22 ms, sensors.md §2.1).
 //  - Acquisition: v3 0x00 <- 0x04 (with receiver bias correction) or 0x03 (without);
 //    v3HP 0x00 <- 0x01. Only the commands the vendor library sends for the variant start a
 //    measurement (strict; what silicon does with the others is not documented). STATUS
@@ -23,7 +24,12 @@
 //    while busy restarts the conversion.
 //  - Conversion time = conversion_us at SIG_COUNT_VAL 0x80, scaled as
 //    1/4 + 3/4 * count / 0x80 (so 0xFF, the max-range preset, takes ~1.75x), plus
-//    bias_extra_us for a v3 bias-corrected acquisition.
+//    bias_extra_us for a v3 bias-corrected acquisition. The defaults are Garmin's
+//    operation manuals: v3 "update rate 270 Hz typical, 650 Hz fast mode" (70 % target):
+//    3.7 ms at the default count 0x80, and the scaling gives 1.55 ms (645 Hz) at preset 1's
+//    0x1D, so both datasheet figures come out; v3HP "greater than 1 kHz": 0.95 ms at 0x80.
+//    Quick termination (ACQ_CONFIG bit 3 clear) and signal-strength dependence are not
+//    modelled: every acquisition takes its full time.
 //  - No signal (set_no_signal): the result latches with STATUS bit3 set, distance 1 cm
 //    (the value v3 units are reported to give without a return) and signal strength 0.
 //    The distance and signal strength are from the truth at the acquisition command.
@@ -46,7 +52,8 @@ enum class LidarLiteVariant : uint8_t { v3, v3hp };
 struct LidarLiteModelConfig {
   LidarLiteVariant variant = LidarLiteVariant::v3;
   uint16_t unit_id = 0x4C31;      // 0x16 (high) / 0x17 (low); a real part's is non-zero
-  uint32_t conversion_us = 1'000;  // at SIG_COUNT_VAL 0x80
+  uint32_t conversion_us = 0;      // at SIG_COUNT_VAL 0x80; 0 = the variant's datasheet figure
+  uint64_t power_on_t_us = 0;      // supply applied; NACKs for reset_us from here
   uint32_t bias_extra_us = 200;    // v3 0x04 only
   uint32_t reset_us = 22'000;      // NACK window after a reset or power-up
   double noise_sigma_cm = 0.0;
@@ -57,6 +64,8 @@ struct LidarLiteModelConfig {
 class LidarLiteModel final : public I2cDeviceModel {
  public:
   static constexpr uint8_t kDefaultAddr7 = 0x62;
+  static constexpr uint32_t kV3ConversionUs = 3'700;    // 270 Hz typical (v3 manual)
+  static constexpr uint32_t kV3hpConversionUs = 950;    // > 1 kHz (v3HP manual)
 
   explicit LidarLiteModel(const LidarLiteModelConfig& config = {});
 

@@ -52,9 +52,13 @@ class Device:
     def read_for(self, seconds: float) -> Iterator[tuple[Received, int]]:
         end = time.monotonic() + seconds
         while time.monotonic() < end:
-            data = self.port.read(1)  # returns as soon as a byte is there: `now` is the arrival time
+            data = self.port.read(1)  # returns as soon as a byte is there
+            waiting = self.port.in_waiting
+            # Stamped after counting what is there: every byte read below arrived before `now`
+            # (stamping before the count would date bytes that arrived meanwhile too early, by
+            # as long as this process was descheduled in between).
             now = time.monotonic_ns()
-            data += self.port.read(self.port.in_waiting)
+            data += self.port.read(waiting)
             for r in self.decoder.feed(data):
                 yield r, now
 
@@ -84,7 +88,7 @@ def test_capture_stream_has_the_rates_gapless_indices_and_the_simulated_clock(de
     kinds = Counter(r.message.NAME for r, _ in got)
     assert 23 <= kinds["EXPOSURE"] <= 26
     assert 470 <= kinds["IMU"] <= 520
-    assert 2300 <= kinds["RANGE"] <= 2600
+    assert 950 <= kinds["RANGE"] <= 1050  # the firmware default 200 Hz: what a LIDAR-Lite v3 delivers
     assert 4 <= kinds["STATUS"] <= 6
     indices = [r.message.image_index for r, _ in got if isinstance(r.message, Exposure)]
     assert indices == list(range(indices[0], indices[0] + len(indices)))
@@ -118,7 +122,7 @@ def test_impaired_link_is_seen_by_the_decoder_which_recovers(device: Device) -> 
     list(device.read_for(0.5))
     before = (stats.rejected, stats.seq_missed)
     clean = list(device.read_for(2.0))
-    assert len(clean) > 1000
+    assert len(clean) > 500  # IMU 100 Hz + RANGE 200 Hz (the firmware defaults) for 2 s
     assert (stats.rejected, stats.seq_missed) == before
 
 

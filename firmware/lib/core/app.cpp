@@ -293,8 +293,30 @@ ErrorCode App::configure(const proto::Configure& cmd) {
   return ErrorCode::ok;
 }
 
+bool App::i2c_credit_left(uint64_t now_us) {
+  if (now_us > i2c_credit_t_us_) {
+    const uint64_t dt = now_us - i2c_credit_t_us_;
+    const uint64_t grow = (dt > INT32_MAX ? uint64_t{INT32_MAX} : dt) * kI2cSharePercent / 100;
+    const int64_t credit = i2c_credit_us_ + static_cast<int64_t>(grow);
+    i2c_credit_us_ = credit > static_cast<int64_t>(kI2cBurstUs) ? static_cast<int64_t>(kI2cBurstUs) : credit;
+    i2c_credit_t_us_ = now_us;
+  }
+  if (i2c_credit_us_ > 0) return true;
+  ++i2c_deferred_steps_;
+  return false;
+}
+
+void App::spend_i2c(uint64_t from_us) {
+  const uint64_t took = ports_.clock.now_us() - from_us;
+  i2c_busy_us_ += took;
+  i2c_credit_us_ -= static_cast<int64_t>(took > INT32_MAX ? INT32_MAX : took);
+}
+
 void App::step_sensors(uint64_t now_us) {
-  if (imu_enabled_ && imu_.step(now_us) == Bno055Step::sample_ready) {
+  const bool imu_go = imu_enabled_ && i2c_credit_left(now_us);
+  const Bno055Step imu_step = imu_go ? imu_.step(now_us) : Bno055Step::idle;
+  if (imu_go) spend_i2c(now_us);
+  if (imu_step == Bno055Step::sample_ready) {
     const ImuSample& s = imu_.sample();
     proto::Imu m;
     m.read_start_t_us = s.read_start_t_us;
@@ -317,7 +339,11 @@ void App::step_sensors(uint64_t now_us) {
                                    (s.reinitialised ? proto::ImuFlags::reinitialised : 0u));
     (void)outbox_.push(m);  // shed when full, counted as dropped_imu
   }
-  if (lidar_enabled_ && lidar_.step(ports_.clock.now_us()) == LidarStep::sample_ready) {
+  const uint64_t lidar_t_us = ports_.clock.now_us();
+  const bool lidar_go = lidar_enabled_ && i2c_credit_left(lidar_t_us);
+  const LidarStep lidar_step = lidar_go ? lidar_.step(lidar_t_us) : LidarStep::idle;
+  if (lidar_go) spend_i2c(lidar_t_us);
+  if (lidar_step == LidarStep::sample_ready) {
     const RangeSample& s = lidar_.sample();
     proto::Range m;
     m.acq_start_t_us = s.acq_start_t_us;

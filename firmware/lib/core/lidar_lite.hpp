@@ -15,11 +15,13 @@
 //    it would move a re-addressed part away from us.
 //  - Running: acquire (v3: 0x00 <- 0x04 on every bias_every-th acquisition starting with
 //    the first after configuration, 0x03 otherwise; v3HP: 0x00 <- 0x01), poll STATUS 0x01
-//    bit0 every 200 us until clear (deadline 20 ms), read the big-endian distance
+//    bit0 from Garmin's acquisition time for the preset on, every 200 us until clear (deadline
+//    20 ms), read the big-endian distance
 //    (v3: pointer 0x8F, STOP before the read; v3HP: 0x0F, repeated start), optionally
-//    SIGNAL_STRENGTH 0x0E. The next acquisition is written no earlier than
-//    acq_start_t_us + 1 s / rate_hz, so the achieved rate is at most rate_hz (on hardware,
-//    a little less: the acquire transfer itself takes time).
+//    SIGNAL_STRENGTH 0x0E. Acquisitions are written on a grid of 1 s / rate_hz (a
+//    late one does not push the later ones back; after a gap longer than a period the grid
+//    restarts), so the achieved rate is rate_hz, or what the part delivers if that is less
+//    (max_rate_hz(): Garmin's acquisition time plus one poll interval).
 //  - No signal: STATUS bit3 set (sensors.md §2.5), or a distance of 0 or 1 cm. sensors.md
 //    documents only bit3; 0 and 1 cm are also treated as "no return" because v3 units are
 //    widely reported to output 1 cm without a return and the part cannot range a target
@@ -98,6 +100,12 @@ class LidarLite {
   // changes. On true the driver starts over from the probe; counters are kept.
   [[nodiscard]] bool reconfigure(const LidarLiteConfig& config);
   [[nodiscard]] static bool valid(const LidarLiteConfig& config);
+  // Garmin's acquisition time for the config's preset (the first STATUS poll waits this).
+  [[nodiscard]] static uint32_t expected_conversion_us(const LidarLiteConfig& config);
+  // What the part can deliver with this preset: one acquisition plus one poll interval
+  // (v3 default preset: 256 Hz; v3HP: 500, the driver's cap). A higher rate_hz is accepted
+  // and simply not reached (STATUS reports the achieved rate's samples).
+  [[nodiscard]] static uint16_t max_rate_hz(const LidarLiteConfig& config);
 
   [[nodiscard]] const RangeSample& sample() const { return sample_; }
   [[nodiscard]] const LidarLiteConfig& config() const { return cfg_; }
@@ -137,7 +145,7 @@ class LidarLite {
   Phase phase_ = Phase::off;
   uint64_t next_t_us_ = 0;       // earliest time of the phase's next transaction
   uint64_t deadline_t_us_ = 0;   // busy / reset deadline
-  uint64_t next_acq_t_us_ = 0;   // earliest next acquisition (start + period)
+  uint64_t next_acq_t_us_ = 0;   // next acquisition on the rate grid
   uint8_t config_index_ = 0;
   uint8_t status_ = 0;           // STATUS of the poll that saw busy clear
   uint32_t acquisitions_ = 0;    // since the last configuration, for the bias cadence

@@ -11,6 +11,11 @@
 //  - Callbacks registered with EdgeInput and Alarm run in interrupt context on the device:
 //    they may only touch lock-free single-producer/single-consumer state.
 //  - All times are microseconds of the one 64-bit device clock (Clock::now_us).
+//  - Board objects are static (or owned by value); none is ever deleted through an interface
+//    pointer. The interfaces' destructors are therefore protected and non-virtual: a virtual
+//    one makes the compiler emit a deleting destructor per class, which references
+//    operator delete and links the allocator into a board that must have none (the Teensy
+//    build pulled in malloc/free that way). firmware/cross/check_board_layer.sh checks it.
 #pragma once
 
 #include <cstddef>
@@ -21,16 +26,22 @@ namespace icgt::hal {
 // The device clock: microseconds since boot, 64 bits, monotonic, never wraps.
 class Clock {
  public:
-  virtual ~Clock() = default;
   [[nodiscard]] virtual uint64_t now_us() const = 0;
+
+ protected:
+  // Non-virtual and protected: nothing deletes a board object through the interface, so no
+  // deleting destructor (and no operator delete) is ever emitted for one. See the header comment.
+  ~Clock() = default;
 };
 
 enum class I2cStatus : uint8_t {
   ok = 0,
-  nack_address,  // nobody answered the address byte (part absent, resetting or unplugged)
-  nack_data,     // the part refused a data byte
-  timeout,       // SCL held low / transfer exceeded the bus timeout
-  bus_error,     // arbitration lost, other bus fault
+  nack_address,  // nobody answered the address byte (part absent, resetting or unplugged); also
+                 // any NACK on a board that cannot tell address from data (Teensy 4)
+  nack_data,     // the part refused a data byte (only boards that can tell, e.g. Teensy 3)
+  timeout,       // bus stuck (SDA/SCL held low), clock stretched past the limit, or the
+                 // transfer exceeded the bus timeout
+  bus_error,     // arbitration lost, controller FIFO error, other bus fault
 };
 
 // How a write followed by a read in one transfer is joined on the bus.
@@ -42,13 +53,15 @@ enum class I2cJoin : uint8_t {
 // One I2C bus. A single primitive, as in ArduPilot's AP_HAL::Device::transfer().
 class I2cBus {
  public:
-  virtual ~I2cBus() = default;
   // Writes send_len bytes to addr7 (send_len == 0 is an address-only probe), then, if
   // recv_len > 0, reads recv_len bytes (joined as `join` says). A read-only transfer has
   // send_len == 0 and recv_len > 0. recv is only meaningful on I2cStatus::ok.
   [[nodiscard]] virtual I2cStatus transfer(uint8_t addr7, const uint8_t* send, std::size_t send_len,
                                            uint8_t* recv, std::size_t recv_len,
                                            I2cJoin join = I2cJoin::repeated_start) = 0;
+
+ protected:
+  ~I2cBus() = default;  // as Clock's
 };
 
 // Register helpers on top of I2cBus, bound to one device address (non-virtual).
@@ -83,8 +96,10 @@ class I2cDevice {
 // A push-pull output line (shutter, focus). Called from interrupt context by the trigger.
 class DigitalOut {
  public:
-  virtual ~DigitalOut() = default;
   virtual void write(bool high) = 0;
+
+ protected:
+  ~DigitalOut() = default;  // as Clock's
 };
 
 // An input line with an edge interrupt (camera feedback, GPS PPS). The board takes the
@@ -92,12 +107,14 @@ class DigitalOut {
 class EdgeInput {
  public:
   using Handler = void (*)(void* ctx, bool level_high, uint64_t t_us);
-  virtual ~EdgeInput() = default;
   // Calls handler on every edge (both directions) until detach(). Returns false if the
   // line cannot deliver interrupts (not wired on this board).
   [[nodiscard]] virtual bool attach(Handler handler, void* ctx) = 0;
   virtual void detach() = 0;
   [[nodiscard]] virtual bool read() const = 0;
+
+ protected:
+  ~EdgeInput() = default;  // as Clock's
 };
 
 // A one-shot hardware timer interrupt at an absolute device time (IntervalTimer on the
@@ -105,33 +122,39 @@ class EdgeInput {
 class Alarm {
  public:
   using Handler = void (*)(void* ctx, uint64_t now_us);
-  virtual ~Alarm() = default;
   virtual void set_handler(Handler handler, void* ctx) = 0;
   // Fires once at t_us (at once if t_us is in the past). Re-arming replaces the pending time.
   virtual void arm_at(uint64_t t_us) = 0;
   virtual void cancel() = 0;
+
+ protected:
+  ~Alarm() = default;  // as Clock's
 };
 
 // The link to the host (USB CDC serial on the Teensy, a pty or socket in the simulator).
 // Never blocks: write() takes what fits and returns how much.
 class ByteStream {
  public:
-  virtual ~ByteStream() = default;
   [[nodiscard]] virtual std::size_t write(const uint8_t* data, std::size_t len) = 0;
   // Bytes write() would accept now without blocking.
   [[nodiscard]] virtual std::size_t writable() const = 0;
   [[nodiscard]] virtual std::size_t read(uint8_t* out, std::size_t cap) = 0;
   // False while no host has the port open (USB unplugged, pty closed).
   [[nodiscard]] virtual bool connected() const = 0;
+
+ protected:
+  ~ByteStream() = default;  // as Clock's
 };
 
 // Battery-backed real-time clock, whole UTC seconds since the Unix epoch.
 class Rtc {
  public:
-  virtual ~Rtc() = default;
   // False if the RTC has never been set (or lost power): its time means nothing.
   [[nodiscard]] virtual bool get_utc_s(int64_t& utc_s) const = 0;
   [[nodiscard]] virtual bool set_utc_s(int64_t utc_s) = 0;
+
+ protected:
+  ~Rtc() = default;  // as Clock's
 };
 
 }  // namespace icgt::hal

@@ -168,12 +168,14 @@ TEST(App, IntervalCaptureStreamsEveryExposureWithFeedbackAndSensorsAtTheirRates)
   const auto imu = rig.host.of(proto::MsgId::IMU);
   const auto range = rig.host.of(proto::MsgId::RANGE);
   ASSERT_GT(imu.size(), 500u);
-  ASSERT_GT(range.size(), 2500u);
+  ASSERT_GT(range.size(), 1900u);
   const auto rate_hz = [](const std::vector<Frame>& v, auto stamp) {
     return static_cast<double>(v.size() - 1) * 1e6 / static_cast<double>(stamp(v.back()) - stamp(v.front()));
   };
   EXPECT_NEAR(rate_hz(imu, [](const Frame& f) { return f.as<proto::Imu>().read_start_t_us; }), 100.0, 0.5);
-  EXPECT_NEAR(rate_hz(range, [](const Frame& f) { return f.as<proto::Range>().acq_start_t_us; }), 500.0, 5.0);
+  // The default rate, which a v3 at its default preset delivers (AppTiming tests ask more).
+  EXPECT_NEAR(rate_hz(range, [](const Frame& f) { return f.as<proto::Range>().acq_start_t_us; }),
+              core::DeviceConfig{}.range_rate_hz, 1.0);
   EXPECT_EQ(rig.host.stats().seq_missed, 0u);
   EXPECT_EQ(rig.host.stats().rejected(), 0u);
 
@@ -285,7 +287,9 @@ TEST(App, TimeSyncRepliesAreHeldForARandomPartOfAFrameSoTheirPhaseOnTheHostsPoll
   for (const auto& f : replies) {
     const auto r = f.as<proto::TimeSyncReply>();
     const uint64_t held = r.device_tx_t_us - r.device_rx_t_us;
-    EXPECT_LE(held, core::TimeSyncResponder::kDitherUs + 100) << "held at most the dither and a loop";
+    // At most the dither and one loop iteration, which may hold a BNO055 burst read
+    // (~1.3 ms on a 400 kHz bus): the reply is stamped when built, so this costs no accuracy.
+    EXPECT_LE(held, core::TimeSyncResponder::kDitherUs + 1'500) << "held at most the dither and a loop";
     early += held < 250 ? 1 : 0;
     late += held > 750 ? 1 : 0;
   }
@@ -397,7 +401,7 @@ TEST(App, SaturatedLinkShedsSamplesNeverExposuresAndCountsEveryDrop) {
   EXPECT_EQ(exposures.size(), truth.size()) << "not one exposure lost";
   EXPECT_EQ(last.dropped_event, 0u);
   EXPECT_GT(last.dropped_imu, 300u);
-  EXPECT_GT(last.dropped_range, 1500u);
+  EXPECT_GT(last.dropped_range, 800u);  // ~5 s of the default 200 Hz
   EXPECT_EQ(rig.host.stats().seq_missed, 0u) << "shed samples never got a sequence number";
 }
 
@@ -435,6 +439,140 @@ TEST(App, FeedbackMissedByTheCameraIsFlaggedNotShifted) {
     }
   }
   EXPECT_GE(missing, 4);
+}
+
+
+// ---------------------------------------------------------------------------------------
+// Realistic timing (issue 13): I2C transfers take their bus time in the simulator, the parts
+// take Garmin's / Bosch's times, and faults stall the bus as the Teensy Wire libraries do.
+
+namespace timing {
+
+// Largest deviation of the shots from their schedule (first trigger + k * interval) [us].
+uint64_t trigger_jitter_us(const std::vector<sim::TrueExposure>& shots, uint64_t interval_us) {
+  uint64_t worst = 0;
+  for (std::size_t k = 0; k < shots.size(); ++k) {
+    const uint64_t planned = shots.front().trigger_t_us + k * interval_us;
+    const uint64_t t = shots[k].trigger_t_us;
+    worst = std::max(worst, t > planned ? t - planned : planned - t);
+  }
+  return worst;
+}
+
+struct Window {
+  uint64_t t0_us, i2c0_us, deferred0;
+  double i2c_share(const sim::SimBoard& b, uint64_t now_us) const {
+    return static_cast<double>(const_cast<sim::SimBoard&>(b).app().i2c_busy_us() - i2c0_us) /
+           static_cast<double>(now_us - t0_us);
+  }
+};
+
+Window open_window(Rig& rig) {
+  return {rig.board.clock().now_us(), rig.board.app().i2c_busy_us(), rig.board.app().i2c_deferred_steps()};
+}
+
+}  // namespace timing
+
+TEST(AppTiming, DefaultRangeRateIsDeliveredAndI2cStaysWithinItsShareOfTheLoop) {
+  Rig rig;
+  rig.run_for(2'000'000);  // BNO055 boot and init
+  const auto w = timing::open_window(rig);
+  const std::size_t ranges0 = rig.host.of(proto::MsgId::RANGE).size();
+  const std::size_t imus0 = rig.host.of(proto::MsgId::IMU).size();
+  rig.run_for(5'000'000);
+  const double s = 5.0;
+  const double range_hz = static_cast<double>(rig.host.of(proto::MsgId::RANGE).size() - ranges0) / s;
+  const double imu_hz = static_cast<double>(rig.host.of(proto::MsgId::IMU).size() - imus0) / s;
+  const double share = w.i2c_share(rig.board, rig.board.clock().now_us());
+  std::printf("defaults: range %.1f Hz (asked %u), IMU %.1f Hz (asked %u), I2C %.1f %% of the loop's time\n", range_hz,
+              core::DeviceConfig{}.range_rate_hz, imu_hz, core::DeviceConfig{}.imu_rate_hz, share * 100.0);
+  EXPECT_NEAR(range_hz, core::DeviceConfig{}.range_rate_hz, 2.0) << "the default is what a v3 delivers";
+  EXPECT_NEAR(imu_hz, core::DeviceConfig{}.imu_rate_hz, 1.0);
+  EXPECT_GT(share, 0.05) << "I2C costs real time on a 400 kHz bus";
+  EXPECT_LE(share, core::App::kI2cSharePercent / 100.0);
+  EXPECT_EQ(rig.board.app().i2c_deferred_steps(), w.deferred0) << "the defaults fit the budget";
+}
+
+TEST(AppTiming, AskingMoreThanTheLidarDeliversCapsAtThePartAndAtTheI2cShare) {
+  Rig rig;
+  rig.run_for(2'000'000);
+  proto::Configure c = default_configure();
+  c.range_rate_hz = 500;
+  c.lidar_model = static_cast<uint8_t>(proto::LidarModel::v3);
+  const uint32_t seq = rig.host.send(c);
+  rig.run_for(500'000);
+  ASSERT_EQ(rig.host.ack_for(seq).error_code, 0u);
+  const auto w = timing::open_window(rig);
+  const std::size_t ranges0 = rig.host.of(proto::MsgId::RANGE).size();
+  rig.run_for(4'000'000);
+  const double range_hz = static_cast<double>(rig.host.of(proto::MsgId::RANGE).size() - ranges0) / 4.0;
+  const double share = w.i2c_share(rig.board, rig.board.clock().now_us());
+  std::printf("v3 asked 500 Hz: achieved %.1f Hz, I2C %.1f %%\n", range_hz, share * 100.0);
+  EXPECT_GT(range_hz, 220.0);
+  EXPECT_LT(range_hz, 270.0) << "a v3 cannot range faster than its 3.7 ms acquisitions";
+  EXPECT_LE(share, core::App::kI2cSharePercent / 100.0 + 0.01);
+}
+
+// A part holding SDA low: every transfer waits the cores' 16 ms and fails. The budget keeps
+// the loop's I2C share at its cap, and the shots (alarm interrupt) are never delayed, since
+// interrupts run while a transfer blocks the loop.
+TEST(AppTiming, StuckBusNeverDelaysATriggerAndCostsTheLoopAtMostItsI2cShare) {
+  Rig rig;
+  rig.run_for(2'000'000);
+  rig.host.send(interval_capture(200'000));
+  rig.run_for(1'000'000);
+  rig.board.bus().set_stuck(true);
+  const auto w = timing::open_window(rig);
+  const uint64_t bus0 = rig.board.bus().busy_us();
+  rig.run_for(5'000'000);
+  const double share = w.i2c_share(rig.board, rig.board.clock().now_us());
+  const uint64_t stalled_us = rig.board.bus().busy_us() - bus0;
+  rig.board.bus().set_stuck(false);
+  rig.run_for(3'000'000);
+  rig.host.send(proto::StopCapture{});
+  rig.run_for(1'500'000);
+  const auto& shots = rig.board.camera().exposures();
+  std::printf("stuck bus: I2C %.1f %% of the loop, %llu us of stalled transfers, trigger jitter %llu us over %zu shots\n",
+              share * 100.0, static_cast<unsigned long long>(stalled_us),
+              static_cast<unsigned long long>(timing::trigger_jitter_us(shots, 200'000)), shots.size());
+  EXPECT_GT(stalled_us, 1'000'000u) << "the fault really stalled transfers";
+  EXPECT_LE(share, core::App::kI2cSharePercent / 100.0 + 0.01);
+  EXPECT_GT(rig.board.app().i2c_deferred_steps(), w.deferred0);
+  ASSERT_GE(shots.size(), 45u);
+  EXPECT_EQ(timing::trigger_jitter_us(shots, 200'000), 0u);
+  EXPECT_EQ(rig.host.of(proto::MsgId::EXPOSURE).size(), shots.size());
+  // Both sensors came back after the fault.
+  const auto last = rig.host.of(proto::MsgId::STATUS).back().as<proto::Status>();
+  EXPECT_NE(last.sensor_health & proto::SensorHealth::lidar_ok, 0u);
+  EXPECT_GT(last.i2c_errors, 0u);
+}
+
+// The BNO055 stretches SCL (sensors.md: 500 us or more, realistic under ~1 ms): the loop pays
+// for it within the budget, the shots do not.
+TEST(AppTiming, ClockStretchingCostsTheLoopNotTheTriggers) {
+  Rig rig;
+  rig.board.bus().set_clock_stretch(0x28, 500);
+  rig.run_for(2'000'000);
+  rig.host.send(interval_capture(200'000));
+  const auto w = timing::open_window(rig);
+  const std::size_t imus0 = rig.host.of(proto::MsgId::IMU).size();
+  rig.run_for(5'000'000);
+  const double share = w.i2c_share(rig.board, rig.board.clock().now_us());
+  const double imu_hz = static_cast<double>(rig.host.of(proto::MsgId::IMU).size() - imus0) / 5.0;
+  rig.host.send(proto::StopCapture{});
+  rig.run_for(1'000'000);
+  const auto& shots = rig.board.camera().exposures();
+  std::printf("BNO055 stretching 500 us: IMU %.1f Hz, I2C %.1f %%, trigger jitter %llu us\n", imu_hz, share * 100.0,
+              static_cast<unsigned long long>(timing::trigger_jitter_us(shots, 200'000)));
+  EXPECT_NEAR(imu_hz, 100.0, 1.0);
+  EXPECT_LE(share, core::App::kI2cSharePercent / 100.0 + 0.01);
+  ASSERT_GE(shots.size(), 25u);
+  EXPECT_EQ(timing::trigger_jitter_us(shots, 200'000), 0u);
+  // Beyond the cores' stretch limit the transfer fails as a timeout.
+  rig.board.bus().set_clock_stretch(0x28, rig.board.bus().timing().stretch_limit_us + 1);
+  const uint32_t errors0 = rig.board.app().imu().i2c_errors();
+  rig.run_for(500'000);
+  EXPECT_GT(rig.board.app().imu().i2c_errors(), errors0);
 }
 
 }  // namespace

@@ -176,7 +176,7 @@ TEST_F(LidarLiteModelV3hpTest, MeasuresOnlyOn0x01) {
 TEST_F(LidarLiteModelTest, CountsBiasCorrectedAcquisitionsSeparately) {
   for (int i = 0; i < 200; ++i) {
     ASSERT_EQ(write({0x00, static_cast<uint8_t>(i % 100 == 0 ? 0x04 : 0x03)}), I2cStatus::ok);
-    clock.advance_us(2'000);
+    clock.advance_us(4'000);  // past the 3.7 ms (3.9 ms bias-corrected) acquisition
   }
   EXPECT_EQ(model.acquisitions(), 200u);
   EXPECT_EQ(model.bias_corrected_acquisitions(), 2u);
@@ -221,7 +221,7 @@ TEST(LidarLiteModelNoise, SeededNoiseIsRepeatableAndHasTheRequestedSpread) {
     LidarLiteModelConfig cfg;
     cfg.noise_sigma_cm = 5.0;
     cfg.seed = seed;
-    VirtualClock clock;
+    VirtualClock clock{1'000'000};  // long past the power-up NACK window
     SimI2cBus bus(clock);
     LidarLiteModel model(cfg);
     bus.attach(kAddr, &model);
@@ -230,7 +230,7 @@ TEST(LidarLiteModelNoise, SeededNoiseIsRepeatableAndHasTheRequestedSpread) {
     for (int i = 0; i < 2000; ++i) {
       const uint8_t cmd[2] = {0x00, 0x03};
       EXPECT_EQ(bus.transfer(kAddr, cmd, 2, nullptr, 0, I2cJoin::stop), I2cStatus::ok);
-      clock.advance_us(2'000);
+      clock.advance_us(4'000);
       uint8_t p = 0x8F, out[2] = {};
       EXPECT_EQ(bus.transfer(kAddr, &p, 1, out, 2, I2cJoin::stop), I2cStatus::ok);
       d.push_back((out[0] << 8) | out[1]);
@@ -287,6 +287,32 @@ TEST_F(LidarLiteModelTest, StuckBusyHoldsBusyFlagAndLatchesNothing) {
   EXPECT_EQ(status() & 0x01, 0x01);
   model.set_stuck_busy(false);
   EXPECT_EQ(status() & 0x01, 0x00);
+}
+
+TEST(LidarLiteModelTiming, AcquisitionTimesAreGarminsFiguresAndThePartNacksWhilePoweringUp) {
+  VirtualClock clock;
+  SimI2cBus bus(clock);
+  LidarLiteModel v3;  // defaults: v3, powered at t = 0
+  bus.attach(kAddr, &v3);
+  uint8_t id[2] = {};
+  const uint8_t pointer = 0x96;
+  // Booting for reset_us after power-up: every transfer is NACKed.
+  EXPECT_EQ(bus.transfer(kAddr, &pointer, 1, id, 2, I2cJoin::stop), I2cStatus::nack_address);
+  clock.set_us(v3.config().reset_us - 1);
+  EXPECT_EQ(bus.transfer(kAddr, &pointer, 1, id, 2, I2cJoin::stop), I2cStatus::nack_address);
+  clock.set_us(v3.config().reset_us);
+  EXPECT_EQ(bus.transfer(kAddr, &pointer, 1, id, 2, I2cJoin::stop), I2cStatus::ok);
+  // v3 manual: 270 Hz typical at the default count 0x80, 650 Hz "fast mode" (0x1D).
+  EXPECT_EQ(v3.conversion_time_us(false), 3'700u);
+  EXPECT_NEAR(1e6 / v3.conversion_time_us(false), 270.0, 5.0);
+  const uint8_t fast[2] = {0x02, 0x1D};
+  ASSERT_EQ(bus.transfer(kAddr, fast, 2, nullptr, 0, I2cJoin::stop), I2cStatus::ok);
+  EXPECT_NEAR(1e6 / v3.conversion_time_us(false), 650.0, 15.0);
+  // v3HP manual: greater than 1 kHz.
+  LidarLiteModelConfig hp;
+  hp.variant = LidarLiteVariant::v3hp;
+  const LidarLiteModel v3hp(hp);
+  EXPECT_GT(1e6 / v3hp.conversion_time_us(false), 1000.0);
 }
 
 }  // namespace

@@ -29,7 +29,7 @@ Example (all keys optional; these are the defaults)::
     [sensors]
     imu_rate_hz = 100
     imu_mode = "ndof"              # or "imuplus"
-    range_rate_hz = 500
+    range_rate_hz = 200
     lidar_model = "v3"             # "v3hp", or "none"
     lidar_preset = 0
     feedback = true                # hot-shoe line wired
@@ -124,7 +124,7 @@ class CaptureSection(_Section, frozen=True, kw_only=True):
 class SensorsSection(_Section, frozen=True, kw_only=True):
     imu_rate_hz: Annotated[int, Meta(ge=0, le=100)] = 100  # BNO055 fusion output: 100 Hz at most; 0 off
     imu_mode: Literal["ndof", "imuplus"] = "ndof"
-    range_rate_hz: Annotated[int, Meta(ge=0, le=500)] = 500  # LIDAR-Lite: 500 Hz at most; 0 off
+    range_rate_hz: Annotated[int, Meta(ge=0, le=500)] = 200  # LIDAR-Lite v3 delivers ~270 Hz at most; 0 off
     lidar_model: Literal["v3", "v3hp", "none"] = "v3"
     lidar_preset: Annotated[int, Meta(ge=0, le=6)] = 0  # v3: 0-5, v3HP: 0-6
     lidar_bias_every: Annotated[int, Meta(ge=1, le=255)] = 100

@@ -278,6 +278,33 @@ def test_other_systems_on_udp_are_passed_on_undecoded(recorder):
         link.stop()
 
 
+def test_datagrams_carry_their_arrival_time_even_when_the_reader_is_late(recorder):
+    """The kernel's receive timestamp, not the moment a busy reader got to the datagram: a one-way clock from
+    arrival times would otherwise see the autopilot's clock move by the reader's backlog."""
+    link, port = make_link(recorder, request_rates=False, timesync=False)
+    got: list[Received] = []
+
+    def slow(rec: Received) -> None:
+        got.append(rec)
+        if len(got) == 1:
+            time.sleep(0.3)  # the reader is stuck here while the next datagram arrives
+
+    link.subscribe(slow, ["ATTITUDE"])
+    link.start()
+    ap = AutopilotPeer(port)
+    try:
+        ap.send(ap.mav.attitude_encode(1, 0, 0, 0, 0, 0, 0))
+        assert wait_until(lambda: len(got) == 1)
+        sent_ns = time.monotonic_ns()
+        ap.send(ap.mav.attitude_encode(2, 0, 0, 0, 0, 0, 0))
+        assert wait_until(lambda: len(got) == 2)
+        assert got[1].rx_ns - sent_ns < 100_000_000  # arrived at once, read ~0.3 s later
+        assert got[1].rx_ns >= sent_ns - 1_000_000
+    finally:
+        ap.close()
+        link.stop()
+
+
 def test_subscribe_queue_is_bounded_and_drops_oldest(recorder):
     link, port = make_link(recorder, request_rates=False, timesync=False)
     q = link.subscribe_queue(["ATTITUDE"], maxsize=3)

@@ -25,11 +25,13 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import enum
+import errno
 import logging
 import os
 import queue
 import select
 import socket
+import struct
 import threading
 import time
 from collections import deque
@@ -63,6 +65,11 @@ log = logging.getLogger(__name__)
 
 MAV_COMP_ID_CAMERA = 100
 _PROTOCOL_MARKER_V1 = 0xFE
+# Linux's SO_TIMESTAMPNS / SCM_TIMESTAMPNS (Python's socket module does not name them): a struct timespec
+# of the datagram's arrival on CLOCK_REALTIME in the ancillary data of recvmsg.
+_SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
+_SCM_TIMESTAMPNS = _SO_TIMESTAMPNS
+_TIMESPEC_CMSG_SPACE = socket.CMSG_SPACE(16)
 
 
 class LinkError(IcgtError):
@@ -337,6 +344,7 @@ class MavlinkLink:
         self._ts_sent = 0
         self._undecoded = 0
         self.receive_buffer_bytes = 0  # the UDP socket's receive buffer once open [bytes]
+        self._kernel_stamps = False  # SO_TIMESTAMPNS on (Linux): datagrams carry their arrival time
         self._outages = 0
         self._transport_errors = 0
         # timesync requests
@@ -373,6 +381,12 @@ class MavlinkLink:
         with contextlib.suppress(OSError):
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, want)
         got = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) // 2  # Linux reports twice what it books
+        if self._clock is time.monotonic_ns:  # the kernel's stamps are on the host clock only
+            try:
+                sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+                self._kernel_stamps = True
+            except OSError as exc:
+                log.warning("no kernel receive timestamps on the MAVLink socket (%s): arrival = read time", exc)
         if got < want:
             log.warning("UDP receive buffer is %d bytes, %d asked (raise net.core.rmem_max to allow it)", got, want)
         self.receive_buffer_bytes = got
@@ -534,11 +548,10 @@ class MavlinkLink:
             return
         if self._datagram:
             for _ in range(256):  # drain the socket, stamping each datagram
-                data = conn.recv()
-                rx_ns = self._clock()
-                if not data:
+                got = self._recv_datagram(conn)
+                if got is None:
                     return
-                self._feed(bytes(data) if not isinstance(data, bytes) else data, rx_ns)
+                self._feed(*got)
         elif isinstance(conn, mavutil.mavtcpin):
             had_client = conn.port is not None
             data = conn.recv(4096)  # accepts a client when there is none
@@ -564,6 +577,41 @@ class MavlinkLink:
             if not data:
                 raise OSError("end of stream (peer closed the connection)")
             self._feed(data if isinstance(data, bytes) else bytes(data), rx_ns)
+
+    def _recv_datagram(self, conn: Any) -> tuple[bytes, int] | None:
+        """One datagram and its arrival time [ns, host monotonic], or None when none is waiting.
+
+        With the kernel's receive timestamp (SO_TIMESTAMPNS) the arrival time is when the datagram reached
+        the socket, not when this thread got round to reading it: a reader that is late (a loaded computer,
+        a burst in the receive buffer) must not make every message look late, which a one-way clock from
+        arrival times cannot tell from the autopilot's clock. pymavlink's mavudp reads with recvfrom and
+        keeps no timestamp, so the socket is read here, with mavudp's own client bookkeeping."""
+        sock = getattr(conn, "port", None)
+        if not self._kernel_stamps or not isinstance(sock, socket.socket):
+            data = conn.recv()
+            rx_ns = self._clock()
+            return (bytes(data), rx_ns) if data else None
+        try:
+            data, ancdata, _flags, addr = sock.recvmsg(65535, _TIMESPEC_CMSG_SPACE)
+        except (BlockingIOError, InterruptedError):
+            return None
+        except OSError as exc:
+            if exc.errno == errno.ECONNREFUSED:
+                return None
+            raise
+        now_ns = self._clock()
+        rx_ns = now_ns
+        for level, kind, payload in ancdata:
+            if level == socket.SOL_SOCKET and kind == _SCM_TIMESTAMPNS and len(payload) >= 16:
+                sec, nsec = struct.unpack("qq", payload[:16])
+                stamped = sec * 1_000_000_000 + nsec - (time.time_ns() - time.monotonic_ns())
+                rx_ns = min(now_ns, stamped)  # never later than now (a realtime step would say so)
+        if getattr(conn, "udp_server", False):
+            conn.clients.add(addr)
+            conn.clients_last_alive[addr] = time.time()
+        elif getattr(conn, "broadcast", False):
+            conn.last_address = addr
+        return (data, rx_ns) if data else None
 
     def _new_parser(self) -> Any:
         parser = mavlink2.MAVLink(None, srcSystem=self.config.system_id, srcComponent=self.config.component_id)

@@ -14,6 +14,7 @@ from icgt.recorder.recorder import CaptureRequestError, check_capture_request
 BAD: list[tuple[str, str, object]] = [
     ("device", "url", ""),
     ("device", "set_rtc", "yes"),
+    ("device", "wait_s", -1.0),
     ("mavlink", "url", ""),
     ("mavlink", "system_id", 300),
     ("mavlink", "system_id", 0),

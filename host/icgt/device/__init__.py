@@ -2,10 +2,20 @@
 
 from icgt.device.link import (
     CommandRefusedError,
+    DeviceAbsentError,
+    DeviceBusyError,
     DeviceLink,
     DeviceLinkError,
     LinkEvent,
     TimeSyncSample,
 )
 
-__all__ = ["CommandRefusedError", "DeviceLink", "DeviceLinkError", "LinkEvent", "TimeSyncSample"]
+__all__ = [
+    "CommandRefusedError",
+    "DeviceAbsentError",
+    "DeviceBusyError",
+    "DeviceLink",
+    "DeviceLinkError",
+    "LinkEvent",
+    "TimeSyncSample",
+]

@@ -33,6 +33,14 @@ class DeviceLinkError(ProtocolError):
     """The device cannot be reached, or did not answer."""
 
 
+class DeviceAbsentError(DeviceLinkError):
+    """The device's port does not exist (yet): not plugged in, or not enumerated."""
+
+
+class DeviceBusyError(DeviceLinkError):
+    """Another program holds the device's port."""
+
+
 class CommandRefusedError(DeviceLinkError):
     """The device refused a command (NACK) and changed nothing."""
 
@@ -228,9 +236,20 @@ class DeviceLink:
 
     # ---------------------------------------------------------------- internals
     def _open(self) -> serial.SerialBase:
+        local = "://" not in self.url
+        if local and not os.path.exists(self.url):
+            raise DeviceAbsentError(f"device {self.url} does not exist (not plugged in?)")
         try:
-            port = serial.serial_for_url(self.url, baudrate=self._baudrate, timeout=0.05, write_timeout=0.5)
+            # exclusive: an flock on the port, so a second recorder cannot read half of the stream.
+            port = serial.serial_for_url(
+                self.url, baudrate=self._baudrate, timeout=0.05, write_timeout=0.5, exclusive=local or None
+            )
         except (serial.SerialException, OSError, ValueError) as exc:
+            if local and "exclusively lock" in str(exc):
+                holders = ", ".join(f"pid {pid} ({cmd})" for pid, cmd in port_holders(self.url)) or "another program"
+                raise DeviceBusyError(f"device {self.url} is in use by {holders}") from None
+            if local and not os.path.exists(self.url):
+                raise DeviceAbsentError(f"device {self.url} disappeared while opening it") from None
             raise DeviceLinkError(f"cannot open device {self.url}: {exc}") from exc
         return port
 
@@ -380,3 +399,24 @@ class DeviceLink:
         self._connected.set()
         outage = now - self._down_since_ns
         self._on_event(LinkEvent("connected", now, f"device link back after {outage / 1e9:.2f} s", outage_ns=outage))
+
+
+def port_holders(path: str) -> list[tuple[int, str]]:
+    """Processes that have `path` open (pid, command line), from /proc: to name who holds a busy port."""
+    try:
+        target = os.path.realpath(path)
+    except OSError:
+        return []
+    found: list[tuple[int, str]] = []
+    for entry in os.scandir("/proc"):
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            fds = os.scandir(f"/proc/{entry.name}/fd")
+            if any(os.path.realpath(fd.path) == target for fd in fds):
+                with open(f"/proc/{entry.name}/cmdline", "rb") as f:
+                    cmd = f.read().replace(b"\0", b" ").decode(errors="replace").strip()
+                found.append((int(entry.name), cmd[:120]))
+        except OSError:
+            continue
+    return found

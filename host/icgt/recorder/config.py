@@ -11,6 +11,7 @@ Example (all keys optional; these are the defaults)::
     [device]
     url = "/dev/ttyACM0"
     set_rtc = true                 # set the device RTC from the host's UTC at start
+    wait_s = 30.0                  # wait this long for a device that is not there yet
 
     [mavlink]
     url = "udpin:0.0.0.0:14550"
@@ -94,6 +95,7 @@ class _Section(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=
 class DeviceSection(_Section, frozen=True, kw_only=True):
     url: Annotated[str, Meta(min_length=1)] = "/dev/ttyACM0"
     set_rtc: bool = True
+    wait_s: Annotated[float, Meta(ge=0.0, le=86_400.0)] = 30.0  # for a device not plugged in (or enumerated) yet
 
 
 class MavlinkSection(_Section, frozen=True, kw_only=True):

@@ -29,7 +29,14 @@ import numpy as np
 
 from icgt import __version__
 from icgt.control import ControlServer, Reply, Request
-from icgt.device import CommandRefusedError, DeviceLink, DeviceLinkError, LinkEvent, TimeSyncSample
+from icgt.device import (
+    CommandRefusedError,
+    DeviceAbsentError,
+    DeviceLink,
+    DeviceLinkError,
+    LinkEvent,
+    TimeSyncSample,
+)
 from icgt.errors import IcgtError
 from icgt.geodesy import q_conjugate, q_multiply
 from icgt.geotag import FrameRecord
@@ -89,6 +96,7 @@ class RecorderStatus:
     pending_frames: int
     last_status: dict[str, Any] | None
     timesync: str = ""  # the autopilot's TIMESYNC: answered / unanswered / not asked yet
+    waiting_for_device: bool = False  # started, the device not there yet ([device] wait_s)
 
 
 # Inputs from the reader threads to the worker, tagged by kind.
@@ -129,6 +137,7 @@ class Recorder:
         self._next_sync_ns = 0
         self._next_clock_log_ns = 0
         self._snapshot: dict[str, Any] = {}
+        self._waiting_for_device = False
         self.failure: IcgtError | None = None
 
     @property
@@ -137,11 +146,64 @@ class Recorder:
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> Path:
-        """Connect to the device (handshake), open the log, connect to the autopilot. Returns the MCAP path."""
+        """Connect to the device (handshake), open the log, connect to the autopilot. Returns the MCAP path.
+
+        Nothing is left on disk by a start that fails: the log is created after the device answered, and
+        removed again if anything after that fails."""
         cfg = self.config
-        cfg.output.dir.mkdir(parents=True, exist_ok=True)
+        out = _output_dir(cfg.output.dir)
+        if self._control_path is not None:
+            # First, so that `icgt status` can say "waiting for the device" while it is not there yet.
+            self.control = ControlServer(self._control_path, self._handle_control)
+            self.control.start()
+        try:
+            self.hello = self._connect_device()
+        except BaseException:
+            self._stop_control()
+            raise
         stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
-        path = cfg.output.dir / f"icgt_{stamp}.mcap"
+        path = out / f"icgt_{stamp}.mcap"
+        try:
+            self._open_log(path)
+            self._record_hello(self.hello)
+            self._configure_device()
+            self._start_mavlink()
+        except BaseException:
+            self._abandon(path)
+            raise
+        self._worker = threading.Thread(target=self._work, name="icgt-recorder", daemon=True)
+        self._worker.start()
+        log.info("recording to %s (device %s, autopilot %s)", path, cfg.device.url, cfg.mavlink.url)
+        return path
+
+    def _connect_device(self) -> Hello:
+        """Open the device and complete the handshake, waiting up to [device] wait_s for it to appear."""
+        cfg = self.config.device
+        deadline = time.monotonic() + cfg.wait_s
+        next_note = 0.0
+        while True:
+            self.device = DeviceLink(
+                cfg.url,
+                on_message=lambda received, rx_ns: self._inbox.append((_DEVICE, received, rx_ns)),
+                on_event=lambda event: self._inbox.append((_DEVICE_EVENT, event, event.host_ns)),
+                on_time_sync=lambda sample: self._inbox.append((_EXCHANGE, sample, sample.host_rx_ns)),
+            )
+            try:
+                return self.device.start()
+            except DeviceAbsentError as exc:
+                now = time.monotonic()
+                if now >= deadline or self._stop.is_set():
+                    raise DeviceAbsentError(f"{exc} (waited {cfg.wait_s:g} s: [device] wait_s)") from None
+                if now >= next_note:
+                    log.warning("waiting for the device: %s", exc)
+                    next_note = now + 10.0
+                self._waiting_for_device = True
+                self._stop.wait(0.5)
+            finally:
+                self._waiting_for_device = False
+
+    def _open_log(self, path: Path) -> None:
+        cfg = self.config
         self.mcap = McapRecorder(path, max_chunk_interval_s=cfg.output.chunk_interval_s)
         os.chmod(path, cfg.output.file_mode)  # private by default ([output] file_mode)
         # Until the autopilot has GPS time, UTC comes from this computer's clock (flagged as such): the
@@ -164,27 +226,25 @@ class Recorder:
                 "autopilot_clock": "autopilot boot microseconds (TIMESYNC maps it to host monotonic)",
             },
         )
-        self.device = DeviceLink(
-            cfg.device.url,
-            on_message=lambda received, rx_ns: self._inbox.append((_DEVICE, received, rx_ns)),
-            on_event=lambda event: self._inbox.append((_DEVICE_EVENT, event, event.host_ns)),
-            on_time_sync=lambda sample: self._inbox.append((_EXCHANGE, sample, sample.host_rx_ns)),
-        )
-        try:
-            self.hello = self.device.start()
-        except IcgtError:
-            self._close_log()
-            raise
-        self._record_hello(self.hello)
-        self._configure_device()
-        self._start_mavlink()
-        if self._control_path is not None:
-            self.control = ControlServer(self._control_path, self._handle_control)
-            self.control.start()
-        self._worker = threading.Thread(target=self._work, name="icgt-recorder", daemon=True)
-        self._worker.start()
-        log.info("recording to %s (device %s, autopilot %s)", path, cfg.device.url, cfg.mavlink.url)
-        return path
+
+    def _abandon(self, path: Path) -> None:
+        """A start that failed after the log was created: close everything and remove the file."""
+        if self.mavlink is not None:
+            with contextlib.suppress(Exception):
+                self.mavlink.stop()
+        if self.device is not None:
+            with contextlib.suppress(Exception):
+                self.device.stop()
+        self._stop_control()
+        self._close_log()
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
+
+    def _stop_control(self) -> None:
+        if self.control is not None:
+            with contextlib.suppress(Exception):
+                self.control.stop()
+            self.control = None
 
     def stop(self) -> None:
         """Stop capture if running, emit every pending frame, close the links and the log."""
@@ -200,8 +260,7 @@ class Recorder:
         with self._worker_lock:
             self._drain(limit=None)
             self._emit(self.sync.poll(time.monotonic_ns(), flush=True))
-        if self.control is not None:
-            self.control.stop()
+        self._stop_control()
         if self.camera is not None:
             self.camera.stop()
         if self.mavlink is not None:
@@ -654,7 +713,8 @@ class Recorder:
             capturing=self._capturing,
             frames=self.frames,
             exposures=self.exposures,
-            device_connected=self.device is not None and self.device.connected,
+            device_connected=self.device is not None and self.device.connected and not self._waiting_for_device,
+            waiting_for_device=self._waiting_for_device,
             autopilot=self.mavlink.state.value if self.mavlink is not None else "none",
             device_clock_settled=bool(snap.get("device_clock_settled", False)),
             device_clock_uncertainty_us=snap.get("device_clock_uncertainty_us"),
@@ -709,6 +769,19 @@ def check_capture_request(interval_s: Any, count: Any, shutter_pulse_s: float) -
     if not 0 <= count <= MAX_COUNT:
         raise CaptureRequestError(f"count {count}: allowed 0 (until stopped) .. {MAX_COUNT}")
     return (float(interval_s) if interval_s is not None else None), count
+
+
+def _output_dir(path: Path) -> Path:
+    """The recordings folder, created if needed; RecordingError saying what is wrong with it otherwise."""
+    if path.exists() and not path.is_dir():
+        raise RecordingError(f"--out {path}: exists and is not a folder")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RecordingError(f"--out {path}: cannot create the folder: {exc.strerror or exc}") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise RecordingError(f"--out {path}: no permission to write in it")
+    return path
 
 
 def _timesync_status(counters: dict[str, int]) -> str:

@@ -64,7 +64,7 @@ def export_items(
 ) -> dict[str, int]:
     """Write the requested formats for prepared items; returns what each wrote (rows, features, images)."""
     from icgt.export.csv_export import write_csv
-    from icgt.export.exif_tags import write_geotagged_copies
+    from icgt.export.geotag_writer import write_geotagged_copies
     from icgt.export.geojson_export import write_geojson
     from icgt.export.odm import GEO_TXT, write_geo_txt
     from icgt.export.opensfm import EXIF_OVERRIDES, write_exif_overrides

@@ -47,6 +47,7 @@ from icgt.ingest import read
 from icgt.sim.scenario import load_scenario
 
 from .geojson_rules import check as check_geojson
+from .odm_rules import camera_axes_ned, rotation
 
 HERE = Path(__file__).resolve().parent
 BASE = np.array([0.5, 0.5, 0.5, 0.5])
@@ -260,7 +261,9 @@ def test_geo_txt_follows_odm_rules(run: Run) -> None:
         assert y == pytest.approx(float(row["Latitude"]), abs=2e-9)
         assert z == pytest.approx(float(row["Altitude"]), abs=1e-4)
         assert angles is not None and acc is not None
-        assert angles == pytest.approx([float(row["Yaw"]), float(row["Pitch"]), float(row["Roll"])], abs=1e-4)
+        q = tuple(float(row[k]) for k in ("cam_qw", "cam_qx", "cam_qy", "cam_qz"))
+        # ODM's convention (odm_rules): the rotation ODM builds from the three angles is the camera's
+        np.testing.assert_allclose(rotation(*angles), camera_axes_ned(q), atol=1e-5)
         assert acc == pytest.approx([float(row["h_acc_m"]), float(row["v_acc_m"])], abs=1e-3)
 
 

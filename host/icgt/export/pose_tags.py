@@ -20,16 +20,18 @@ Where ODM reads them (the same rules are written down in that test):
 - accuracy: ``@drone-dji:RtkStdLon``/``RtkStdLat``/``RtkStdHgt`` if present, else
   ``Camera:GPSXYAccuracy``/``Camera:GPSZAccuracy`` [m] (ODM then doubles them).
 
-OpenSfM's own EXIF reader reads only the first rdf:Description's attributes: the DJI gimbal angles
-(pitch + 90) or ``@Camera:Yaw/Pitch/Roll`` (as they are); Pix4D and Metashape read the same DJI and
-Camera (Pix4D namespace) tags. Hence what is written (all attributes of one rdf:Description):
+OpenSfM's own EXIF reader (opensfm/exif.py, extract_opk) reads only the first rdf:Description's
+attributes: ``@Camera:Yaw/Pitch/Roll`` as they are if all three are there, else the DJI gimbal
+angles with pitch + 90. Pix4D and Metashape read the same DJI and Camera (Pix4D namespace) tags.
+Hence what is written (all attributes of one rdf:Description):
 
-- every camera: ``Camera:Yaw/Pitch/Roll`` in ODM's convention, except that for DJI/Hasselblad makes
-  Camera:Pitch is ODM's pitch - 90 (ODM adds 90 for these makes whatever tag it read) and for
-  senseFly makes Camera:Roll is negated; ``Camera:GPSXYAccuracy``/``GPSZAccuracy`` = the GPS's
-  horizontal/vertical accuracy [m];
-- DJI/Hasselblad makes also: ``drone-dji:GimbalYawDegree/GimbalPitchDegree/GimbalRollDegree`` in
-  DJI's convention (pitch - 90), which OpenSfM prefers to Camera:*;
+- most cameras: ``Camera:Yaw/Pitch/Roll`` in ODM's convention (for senseFly makes Camera:Roll
+  negated, ODM's rule; OpenSfM has no such rule, so it reads those files' roll with the other
+  sign: no tag satisfies both);
+- DJI/Hasselblad makes: ``drone-dji:GimbalYawDegree/GimbalPitchDegree/GimbalRollDegree`` in DJI's
+  convention (pitch = ODM's - 90) and ``Camera:Yaw`` alone (ODM takes yaw from Flight yaw or
+  Camera:Yaw, never from the gimbal's; with no Camera:Pitch/Roll OpenSfM goes to the gimbal tags);
+- ``Camera:GPSXYAccuracy``/``GPSZAccuracy`` = the GPS's horizontal/vertical accuracy [m];
 - removed, because ODM/OpenSfM would prefer them to ours (`CONFLICTING`): the camera's own
   drone-dji position, flight and gimbal angles and RTK accuracies and its Camera:* pose tags. The
   values replaced are recorded in the copy (``icgt:ReplacedTags``) and in problems.csv.
@@ -80,14 +82,21 @@ _CBB = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 def odm_angles(q_cam_ned: tuple[float, float, float, float]) -> tuple[float, float, float]:
     """(yaw, pitch, roll) [deg] in ODM's convention of a camera->NED quaternion (w, x, y, z; camera x right, y down, z forward).
 
-    yaw in [0, 360), pitch in [-90, 90], roll in (-180, 180].
+    Of the two angle sets of every rotation, the one with |roll| <= 90 (a gimbal's): yaw in
+    [0, 360), pitch in [-90, 270) (0 nadir, 90 level, 102 looking 12 deg up). Looking exactly
+    level, ODM's pitch 90 leaves only yaw - roll defined: roll is then 0.
     """
     r_ned_cam = q_to_matrix(np.asarray(q_cam_ned, dtype=np.float64) / np.linalg.norm(q_cam_ned))
     cnb = r_ned_cam @ _FLIP_YZ @ _CBB  # Cnb = R(NED <- photogrammetric camera) Cbb^-1
-    pitch = math.degrees(math.asin(max(-1.0, min(1.0, -float(cnb[2, 0])))))
-    yaw = math.degrees(math.atan2(float(cnb[1, 0]), float(cnb[0, 0]))) % 360.0
+    sp = max(-1.0, min(1.0, -float(cnb[2, 0])))
+    pitch = math.degrees(math.asin(sp))
+    if math.hypot(float(cnb[0, 0]), float(cnb[1, 0])) < 1e-9:  # pitch +-90: roll 0, yaw from the rest
+        return math.degrees(math.atan2(-float(cnb[0, 1]), float(cnb[1, 1]))) % 360.0, pitch, 0.0
+    yaw = math.degrees(math.atan2(float(cnb[1, 0]), float(cnb[0, 0])))
     roll = math.degrees(math.atan2(float(cnb[2, 1]), float(cnb[2, 2])))
-    return yaw, pitch, roll
+    if abs(roll) > 90.0:  # the same rotation as (yaw + 180, 180 - pitch, roll -+ 180)
+        yaw, pitch, roll = yaw + 180.0, 180.0 - pitch, roll - math.copysign(180.0, roll)
+    return yaw % 360.0, pitch, roll
 
 
 def odm_rotation(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
@@ -112,15 +121,14 @@ def xmp_pose_values(
         yaw, pitch, roll = angles_odm
         low = (make or "").strip().lower()
         if low in DJI_PITCH_MAKES:
-            pitch -= 90.0
             out["XMP-drone-dji:GimbalYawDegree"] = _signed(yaw)
-            out["XMP-drone-dji:GimbalPitchDegree"] = pitch
+            out["XMP-drone-dji:GimbalPitchDegree"] = pitch - 90.0
             out["XMP-drone-dji:GimbalRollDegree"] = roll
-        if low in ROLL_NEGATED_MAKES:
-            roll = -roll
-        out["XMP-Camera:Yaw"] = yaw
-        out["XMP-Camera:Pitch"] = pitch
-        out["XMP-Camera:Roll"] = roll
+            out["XMP-Camera:Yaw"] = yaw
+        else:
+            out["XMP-Camera:Yaw"] = yaw
+            out["XMP-Camera:Pitch"] = pitch
+            out["XMP-Camera:Roll"] = -roll if low in ROLL_NEGATED_MAKES else roll
     if h_acc_m is not None and math.isfinite(h_acc_m):
         out["XMP-Camera:GPSXYAccuracy"] = h_acc_m
     if v_acc_m is not None and math.isfinite(v_acc_m):

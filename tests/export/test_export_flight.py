@@ -134,7 +134,7 @@ def _problems(run: Run) -> list[dict[str, str]]:
 
 
 def test_export_completes_and_originals_are_untouched(run: Run) -> None:
-    assert run.exit_code == 0
+    assert run.exit_code == 1  # problems.csv has error rows (an unmatched image, one without an EXIF time)
     assert "exported" in run.stdout and "problems" in run.stdout
     assert _hashes(run.card) == run.hashes_before
     copies = sorted((run.out / "images").glob("*.JPG"))
@@ -149,7 +149,10 @@ def test_every_input_problem_is_reported_per_image(run: Run) -> None:
     first, fifth = sorted(run.hashes_before)[0], sorted(run.hashes_before)[5]
     assert {(p["severity"], p["code"]) for p in by_image[first]} == {("error", "no_exif_time")}
     assert first not in run.rows
-    assert {(p["severity"], p["code"]) for p in by_image[fifth]} == {("warning", "no_exif_time")}
+    # (a loaded machine can add a pose_quality warning: the simulated autopilot's messages come late)
+    assert {(p["severity"], p["code"]) for p in by_image[fifth]} - {("warning", "pose_quality")} == {
+        ("warning", "no_exif_time")
+    }
     assert fifth in run.rows  # placed between its timed neighbours, and exported
     assert [(p["severity"], p["code"]) for p in by_image["DSC09999.JPG"]] == [("error", "unmatched_image")]
     missed = [p for p in problems if p["code"] == "frame_feedback_missing"]

@@ -191,7 +191,7 @@ def test_geo_txt_without_accuracy_and_with_bad_names(tmp_path: Path) -> None:
     assert lines[0] == "EPSG:4326" and len(lines) == 2
     parts = lines[1].split()
     assert len(parts) == 7  # no accuracies: ODM reads them only from lines with 9 fields
-    assert [float(p) for p in parts[4:7]] == pytest.approx([10.0, -30.0, 0.0], abs=1e-4)
+    assert [float(p) for p in parts[4:7]] == pytest.approx([10.0, 60.0, 0.0], abs=1e-4)  # ODM: 30 deg down is 60
     assert [(p.image, p.code) for p in problems if p.code == "bad_file_name"] == [("B C.JPG", "bad_file_name")]
 
 

@@ -49,7 +49,7 @@ ICGT_TAGS = (
 )  # fmt: skip
 """Every property of the icgt XMP namespace (declared to ExifTool by its config)."""
 
-READ_TAGS = ("-EXIF:Make", "-GPS:all", "-XMP-drone-dji:all", "-XMP-Camera:all", "-XMP-icgt:all",
+READ_TAGS = ("-EXIF:Make", "-XMP-tiff:Make", "-GPS:all", "-XMP-exif:all", "-XMP-drone-dji:all", "-XMP-Camera:all", "-XMP-icgt:all",
              "-ExifIFD:SubjectDistance", "-Composite:GPSLatitude", "-Composite:GPSLongitude",
              "-File:FileType", "-ExifTool:Warning", "-ExifTool:Error")  # fmt: skip
 """What is read of each original (before) and of each copy (after), in one batched command."""

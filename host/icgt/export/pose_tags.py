@@ -33,7 +33,8 @@ Hence what is written (all attributes of one rdf:Description):
   Camera:Yaw, never from the gimbal's; with no Camera:Pitch/Roll OpenSfM goes to the gimbal tags);
 - ``Camera:GPSXYAccuracy``/``GPSZAccuracy`` = the GPS's horizontal/vertical accuracy [m];
 - removed, because ODM/OpenSfM would prefer them to ours (`CONFLICTING`): the camera's own
-  drone-dji position, flight and gimbal angles and RTK accuracies and its Camera:* pose tags. The
+  drone-dji position, flight and gimbal angles and RTK accuracies, its Camera:* pose tags and a GPS
+  position in its XMP (exif:GPSLatitude..., which would disagree with the new EXIF GPS). The
   values replaced are recorded in the copy (``icgt:ReplacedTags``) and in problems.csv.
 """
 
@@ -67,6 +68,10 @@ CONFLICTING: tuple[str, ...] = (
     "XMP-Camera:Roll",
     "XMP-Camera:GPSXYAccuracy",
     "XMP-Camera:GPSZAccuracy",
+    "XMP-exif:GPSLatitude",
+    "XMP-exif:GPSLongitude",
+    "XMP-exif:GPSAltitude",
+    "XMP-exif:GPSAltitudeRef",
 )
 """The camera's own tags that ODM/OpenSfM/Pix4D/Metashape would take instead of ours (ExifTool names)."""
 

@@ -61,8 +61,9 @@ def jpeg_damage(data: bytes) -> str | None:
     """Why a JPEG's bytes are not a whole image (cut off, broken markers), or None.
 
     Walks the marker segments to the first start-of-scan, then looks for the end-of-image marker:
-    inside entropy-coded data 0xFF is always followed by 0x00 or a restart marker, so the first
-    FF D9 after the scan header is the image's end (a camera's trailer, MPF images, may follow).
+    inside entropy-coded data 0xFF is always followed by 0x00 or a restart marker, so any FF D9
+    after the scan header means the image data ended (a camera's trailer, MPF images, may follow);
+    searched from the end, where it usually is.
     """
     if data[:2] != b"\xff\xd8":
         return "not a JPEG file (no start-of-image marker)"
@@ -84,6 +85,6 @@ def jpeg_damage(data: bytes) -> str | None:
         if marker == 0xDA:
             break
         pos += 2 + length
-    if data.find(b"\xff\xd9", pos + 2 + length) < 0:
+    if data.rfind(b"\xff\xd9", pos + 2 + length) < 0:
         return f"cut off: the image data stops at byte {len(data)} without an end-of-image marker (truncated file)"
     return None

@@ -136,7 +136,8 @@ class ExifToolSession:
 
         if not files:
             return {}
-        _, out, err = self.run(["-j", "-n", "-G1", "-a", *tags, *[str(f) for f in files]])
+        # -fast2: stop at the image data (all read here is in front of it) and leave maker notes undecoded
+        _, out, err = self.run(["-j", "-n", "-G1", "-a", "-fast2", *tags, *[str(f) for f in files]])
         try:
             rows = json.loads(out) if out.strip() else []
         except ValueError as exc:

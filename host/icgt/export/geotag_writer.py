@@ -20,6 +20,7 @@ import math
 import os
 import shutil
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -100,39 +101,64 @@ def write_geotagged_copies(
     progress: bool = False,
     images_root: Path | None = None,
     raws: Sequence[Path] = (),
+    workers: int | None = None,
 ) -> int:
     """Geotagged copies of every item's image into out_dir, XMP sidecars for their RAW files; returns the copies made.
 
     Copies keep their path below `images_root` (DCIM/100MSDCF/...), else their file name; a
     sidecar is named after its RAW file with the suffix .xmp. An image without a usable position
-    is still copied (XMP only, no GPS tags; prepare_items reported why).
+    is still copied (XMP only, no GPS tags; prepare_items reported why). `workers`: ExifTool
+    processes run side by side (default: one per CPU core).
     """
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ExportError(f"cannot create {out_dir}: {exc.strerror or exc}") from exc
     todo = [i for i in items if i.image is not None]
-    raw_list = list(raws)
-    written = 0
+    if not todo:
+        return 0
+    # ExifTool is one Perl process per session, single-threaded: one session per core, each on
+    # its own share of the images (the threads only wait on their process); rows merged in order
+    workers = max(1, min(workers if workers is not None else (os.cpu_count() or 1), len(todo), 8))
+    shares = [todo[k::workers] for k in range(workers)]
+    bar = tqdm(total=len(todo), desc="jpeg", unit="image", disable=not progress)
+    logs = [ProblemLog() for _ in shares]
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        futures = [
+            pool.submit(_run_share, share, out_dir, images_root, list(raws), log, bar)
+            for share, log in zip(shares, logs, strict=True)
+        ]
+        written = sum(f.result() for f in futures)
+    bar.close()
+    rows = [r for log in logs for r in log.problems]
+    order = {id(item): k for k, item in enumerate(todo)}
+    seqs = {item.frame.frame_seq: order[id(item)] for item in todo}
+    rows.sort(key=lambda r: seqs.get(r.frame_seq, len(todo)) if r.frame_seq is not None else len(todo))
+    problems.problems.extend(rows)
+    return written
+
+
+def _run_share(
+    share: list[ExportItem], out_dir: Path, images_root: Path | None, raws: list[Path], problems: ProblemLog, bar: Any
+) -> int:
     with ExifToolSession(ICGT_TAGS) as et:
         sources: list[Path] = []
-        for item in todo:
+        for item in share:
             assert item.image is not None
             sources.append(item.image)
-            sources += raw_siblings(item.image, raw_list)
+            sources += raw_siblings(item.image, raws)
         before = _read_all(et, sources)
         pending: list[_Pending] = []
-        for item in tqdm(todo, desc="jpeg", unit="image", disable=not progress):
+        for item in share:
             assert item.image is not None
             src = item.image
             pending += _write_one(et, item, src, _destination(src, out_dir, images_root), before, problems)
-            for raw in raw_siblings(src, raw_list):
+            for raw in raw_siblings(src, raws):
                 dst = _destination(raw, out_dir, images_root).with_suffix(".xmp")
                 pending += _write_one(et, item, raw, dst, before, problems, sidecar=True)
+            bar.update(1)
         after = _read_all(et, [p.tmp for p in pending])
-    for p in pending:
-        written += _finish(p, after.get(p.tmp, {}), problems)
-    return written
+    return sum(_finish(p, after.get(p.tmp, {}), problems) for p in pending)
 
 
 def _write_one(

@@ -86,7 +86,7 @@ def run_peer(items: list, before: dict, out: Path, cfg: Path) -> float:
     lines: list[str] = []
     for item in items:
         tags = intended_tags(item, before)
-        lines += write_args(item.image, out / item.image.name, tags) + ["-execute"]
+        lines += [*write_args(item.image, out / item.image.name, tags), "-execute"]
     argfile = out / "args.txt"
     argfile.write_text("\n".join(lines) + "\n", encoding="utf-8")
     t0 = time.perf_counter()
@@ -123,8 +123,13 @@ def main() -> int:
             shutil.rmtree(ours_out)
     n = len(items)
     print(f"card: {n} JPEGs, 6000x4000, {size_mb / n:.1f} MB each, Canon S40 EXIF with maker notes and thumbnail")
-    print(f"(a) exiftool, one process, same tags, no read-back: {best_peer:7.2f} s  ({1000 * best_peer / n:6.1f} ms/image)")
-    print(f"(b) icgt export, read + write + read-back check:   {best_ours:7.2f} s  ({1000 * best_ours / n:6.1f} ms/image)")
+    print(
+        f"(a) exiftool, one process, same tags, no read-back: {best_peer:7.2f} s  "
+        f"({1000 * best_peer / n:6.1f} ms/image)"
+    )
+    print(
+        f"(b) icgt export, read + write + read-back check:   {best_ours:7.2f} s  ({1000 * best_ours / n:6.1f} ms/image)"
+    )
     print(f"ratio (b)/(a): {best_ours / best_peer:.2f}  (target <= 1.00)")
     return 0
 

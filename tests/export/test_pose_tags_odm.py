@@ -100,7 +100,9 @@ def _axes(f: FrameRecord) -> np.ndarray:
     return camera_axes_ned((f.cam_qw, f.cam_qx, f.cam_qy, f.cam_qz))
 
 
-def test_odm_reads_our_rotation_position_and_accuracy(exported: tuple[Path, dict[str, FrameRecord], ProblemLog]) -> None:
+def test_odm_reads_our_rotation_position_and_accuracy(
+    exported: tuple[Path, dict[str, FrameRecord], ProblemLog],
+) -> None:
     out, frames, _ = exported
     for name, f in frames.items():
         path = out / "images" / name

@@ -174,7 +174,7 @@ def test_samples_have_what_the_checks_are_about(copies: tuple[Path, Path, Proble
 
 
 def test_cut_off_images_are_problem_rows_and_get_no_copy(copies: tuple[Path, Path, ProblemLog]) -> None:
-    card, out, problems = copies
+    _, out, problems = copies
     for name in DAMAGED:
         (row,) = [p for p in problems if p.image == name]
         assert row.severity == "error" and "cut off" in row.detail and row.affects == "jpeg"

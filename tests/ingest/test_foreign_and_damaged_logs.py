@@ -1,4 +1,4 @@
-"""Foreign and damaged MCAP files: an IngestError that says what the file is, never a traceback (read, match, export)."""
+"""Foreign and damaged MCAP files: an IngestError saying what the file is, never a traceback (read, match, export)."""
 
 from __future__ import annotations
 
@@ -59,7 +59,9 @@ def test_mcap_without_frames_or_icgt_metadata_says_so(tmp_path: Path) -> None:
     path = tmp_path / "other.mcap"
     with McapRecorder(path, fsync=False) as rec:
         rec.write("/fix", LocationFix(latitude=1.0), T0)
-    with pytest.raises(IngestError, match=r"not an ICGT recording: no /frames channel and no metadata of the ICGT recorder .*/fix"):
+    with pytest.raises(
+        IngestError, match=r"not an ICGT recording: no /frames channel and no metadata of the ICGT recorder .*/fix"
+    ):
         list(read(path).frames())
 
 
@@ -76,7 +78,9 @@ def test_undecodable_protobuf_bytes_are_an_ingest_error(tmp_path: Path) -> None:
     with path.open("wb") as f:
         w = Writer(f)
         w.start()
-        sid = w.register_schema("foxglove.LocationFix", "protobuf", build_file_descriptor_set(LocationFix).SerializeToString())
+        sid = w.register_schema(
+            "foxglove.LocationFix", "protobuf", build_file_descriptor_set(LocationFix).SerializeToString()
+        )
         cid = w.register_channel("/fix", "protobuf", sid)
         w.add_message(cid, log_time=T0, data=b"\xff\xff\xff\xff\x0f", publish_time=T0)
         w.finish()

@@ -74,8 +74,8 @@ def export_items(
 ) -> dict[str, int]:
     """Write the requested formats for prepared items; returns what each wrote (rows, features, images)."""
     from icgt.export.csv_export import write_csv
-    from icgt.export.geotag_writer import write_geotagged_copies
     from icgt.export.geojson_export import write_geojson
+    from icgt.export.geotag_writer import write_geotagged_copies
     from icgt.export.odm import GEO_TXT, write_geo_txt
     from icgt.export.opensfm import EXIF_OVERRIDES, write_exif_overrides
 
@@ -156,15 +156,17 @@ def report_card(scan: CardScan, paired: set[Path], problems: ProblemLog) -> None
     from icgt.export.card import raw_siblings
 
     for p in scan.hidden:
-        problems.add(p.name, None, "info", "hidden_file_skipped", f"{p}: hidden or macOS AppleDouble file, not an image")
+        problems.add(
+            p.name, None, "info", "hidden_file_skipped", f"{p}: hidden or macOS AppleDouble file, not an image"
+        )
     for p in scan.heic:
         problems.add(p.name, None, "error", "heic_not_supported",
-                     f"{p}: HEIC/HEIF images are not read (convert them to JPEG, e.g. with heif-convert)", "all")  # fmt: skip
+                     f"{p}: HEIC/HEIF images are not read (convert them to JPEG first)", "all")  # fmt: skip
     with_jpeg = {r for j in paired for r in raw_siblings(j, scan.raw)}
     for p in scan.raw:
         if p not in with_jpeg:
             problems.add(p.name, None, "warning", "raw_without_jpeg",
-                         f"{p}: no paired JPEG of the same name in its folder: no XMP sidecar", "xmp-sidecar")  # fmt: skip
+                         f"{p}: no paired JPEG of this name in its folder: no sidecar", "xmp-sidecar")  # fmt: skip
 
 
 def match_pairs(
@@ -338,7 +340,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def exit_status(problems: ProblemLog) -> int:
-    """0: every image and frame exported with nothing to distrust (info rows only); 1: problems.csv has errors or warnings."""
+    """0: everything exported with nothing to distrust (info rows only); 1: problems.csv has errors or warnings."""
     return 1 if any(p.severity in ("error", "warning") for p in problems) else 0
 
 

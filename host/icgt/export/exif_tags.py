@@ -49,7 +49,8 @@ ICGT_TAGS = (
 )  # fmt: skip
 """Every property of the icgt XMP namespace (declared to ExifTool by its config)."""
 
-READ_TAGS = ("-EXIF:Make", "-XMP-tiff:Make", "-GPS:all", "-XMP-exif:all", "-XMP-drone-dji:all", "-XMP-Camera:all", "-XMP-icgt:all",
+READ_TAGS = ("-EXIF:Make", "-XMP-tiff:Make", "-GPS:all", "-XMP-exif:all", "-XMP-drone-dji:all", "-XMP-Camera:all",
+             "-XMP-icgt:all",
              "-ExifIFD:SubjectDistance", "-Composite:GPSLatitude", "-Composite:GPSLongitude",
              "-File:FileType", "-ExifTool:Warning", "-ExifTool:Error")  # fmt: skip
 """What is read of each original (before) and of each copy (after), in one batched command."""
@@ -184,9 +185,9 @@ def replaced_tags(before: Mapping[str, Any], new: Mapping[str, Any]) -> str:
     """'name=value; ...' of the camera's GPS and pose tags that the copy replaces or removes."""
     parts = []
     for key, value in before.items():
-        if (key.startswith("GPS:") and key != "GPS:GPSVersionID") or key in CONFLICTING:
-            if new.get(key) != value:
-                parts.append(f"{key}={value}")
+        ours = (key.startswith("GPS:") and key != "GPS:GPSVersionID") or key in CONFLICTING
+        if ours and new.get(key) != value:
+            parts.append(f"{key}={value}")
     return "; ".join(parts)
 
 

@@ -85,7 +85,9 @@ _CBB = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 
 
 def odm_angles(q_cam_ned: tuple[float, float, float, float]) -> tuple[float, float, float]:
-    """(yaw, pitch, roll) [deg] in ODM's convention of a camera->NED quaternion (w, x, y, z; camera x right, y down, z forward).
+    """(yaw, pitch, roll) [deg] in ODM's convention of a camera->NED quaternion.
+
+    The quaternion is (w, x, y, z), camera x right, y down, z forward, as FrameRecord.cam_q*.
 
     Of the two angle sets of every rotation, the one with |roll| <= 90 (a gimbal's): yaw in
     [0, 360), pitch in [-90, 270) (0 nadir, 90 level, 102 looking 12 deg up). Looking exactly

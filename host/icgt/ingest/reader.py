@@ -427,7 +427,9 @@ class Recording:
                     try:
                         inner = DecoderFactory().decoder_for("protobuf", schema)
                     except Exception as exc:  # a schema that is not a FileDescriptorSet
-                        raise IngestError(f"cannot decode {topic}: protobuf schema {schema.name!r} unreadable ({exc})") from None
+                        raise IngestError(
+                            f"cannot decode {topic}: protobuf schema {schema.name!r} unreadable ({exc})"
+                        ) from None
                     if inner is None:
                         raise IngestError(f"cannot decode {topic}: protobuf schema {schema.name!r} unreadable")
 

@@ -186,35 +186,35 @@ _RECORDS: dict[int, type[McapRecord]] = {
 _CHUNK_COMPRESSIONS = ("", "zstd", "lz4")
 
 
-class _Damaged(Exception):
+class _DamagedError(Exception):
     """No whole, parsable record at an offset."""
 
 
 def _parse_at(buf: bytes | mmap.mmap, pos: int, size: int) -> tuple[McapRecord, int]:
-    """The record at `pos` and the offset after it; raises _Damaged (cut off, unknown opcode, unparsable)."""
+    """The record at `pos` and the offset after it; raises _DamagedError (cut off, unknown opcode, unparsable)."""
     if pos + 9 > size:
-        raise _Damaged(f"the file ends inside a record header at offset {pos}")
+        raise _DamagedError(f"the file ends inside a record header at offset {pos}")
     opcode = buf[pos]
     length = int.from_bytes(buf[pos + 1 : pos + 9], "little")
     cls = _RECORDS.get(opcode)
     if cls is None:
-        raise _Damaged(f"no MCAP record at offset {pos} (opcode {opcode:#04x})")
+        raise _DamagedError(f"no MCAP record at offset {pos} (opcode {opcode:#04x})")
     end = pos + 9 + length
     if end > size:
-        raise _Damaged(f"a {cls.__name__} record at offset {pos} runs {end - size} bytes past the end of the file")
+        raise _DamagedError(f"a {cls.__name__} record at offset {pos} runs {end - size} bytes past the end of the file")
     body = bytes(buf[pos + 9 : end])
     stream = ReadDataStream(cast(IO[bytes], _StrictSource(io.BytesIO(body), length)))
     try:
         record = Message.read(stream, length) if cls is Message else cls.read(stream)  # type: ignore[attr-defined]
     except Exception as exc:  # garbage can fail in any way inside the library's parsers
-        raise _Damaged(f"unreadable {cls.__name__} record at offset {pos} ({_why(exc)})") from None
+        raise _DamagedError(f"unreadable {cls.__name__} record at offset {pos} ({_why(exc)})") from None
     return cast(McapRecord, record), end
 
 
 def _intact_chunk_at(buf: bytes | mmap.mmap, pos: int, size: int) -> bool:
     try:
         record, _ = _parse_at(buf, pos, size)
-    except _Damaged:
+    except _DamagedError:
         return False
     if not isinstance(record, Chunk) or record.compression not in _CHUNK_COMPRESSIONS:
         return False
@@ -239,7 +239,7 @@ def _walk(buf: bytes | mmap.mmap, size: int, report: RecoveryReport) -> Iterator
     while pos < size:
         try:
             record, end = _parse_at(buf, pos, size)
-        except _Damaged as exc:
+        except _DamagedError as exc:
             nxt = _next_chunk(buf, pos + 1, size)
             if nxt is None:
                 report.end_reason = f"stopped at offset {pos}: {exc}"

@@ -102,3 +102,34 @@ def test_jpeg_damage_finds_cut_off_and_broken_files(tmp_path: Path) -> None:
     assert "cut off" in (jpeg_damage(data[: len(data) - 40]) or "")
     assert "cut off" in (jpeg_damage(data[:30]) or "")
     assert "not a JPEG" in (jpeg_damage(b"\x00\x05\x16\x07Mac OS X") or "")
+
+
+@pytest.mark.parametrize(
+    "packet",
+    [
+        '<x:xapmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
+        '<rdf:Description rdf:about="" xmlns:dc="http://purl.org/dc/elements/1.1/" xmlns:t="http://ns.adobe.com/tiff/1.0/"'
+        ' t:Make="SONY"><dc:creator><rdf:Seq><rdf:li>pilot</rdf:li></rdf:Seq></dc:creator></rdf:Description>'
+        "</rdf:RDF></x:xapmeta>",
+        '<rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#"><rdf:Description rdf:about=""'
+        ' xmlns:dc="http://purl.org/dc/elements/1.1/" xmlns:t="http://ns.adobe.com/tiff/1.0/" t:Make="SONY">'
+        "<dc:creator><rdf:Seq><rdf:li>pilot</rdf:li></rdf:Seq></dc:creator></rdf:Description></rdf:RDF>",
+    ],
+    ids=["xapmeta-root", "bare-rdf-root"],
+)
+def test_existing_xmp_with_another_root_spelling_is_kept(tmp_path: Path, packet: str) -> None:
+    src = tmp_path / "DSC00001.JPG"
+    img = Image.new("RGB", (64, 48), (90, 120, 150))
+    exif = img.getexif()
+    exif[0x010F] = "SONY"
+    img.save(src, format="JPEG", quality=90, exif=exif, xmp=packet.encode())
+    problems = ProblemLog()
+    items = prepare_items([(src, frame(1, 40.0, -80.0, 0.0))], None, problems)
+    assert write_geotagged_copies(items, tmp_path / "out", problems) == 1
+    cmd = ["exiftool", "-j", "-G1", "-XMP:all", str(src), str(tmp_path / "out" / src.name)]
+    before, after = json.loads(subprocess.run(cmd, capture_output=True, text=True, check=True).stdout)
+    assert before["XMP-dc:Creator"] == after["XMP-dc:Creator"] == "pilot"
+    assert before["XMP-tiff:Make"] == after["XMP-tiff:Make"] == "SONY"
+    data = (tmp_path / "out" / src.name).read_bytes()
+    assert data.count(b"<x:xmpmeta") == 1  # one packet, with the root ODM and OpenSfM look for
+    assert ("xmp_rewrapped" in {p.code for p in problems}) == packet.startswith("<rdf")

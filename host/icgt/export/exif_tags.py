@@ -191,9 +191,19 @@ def replaced_tags(before: Mapping[str, Any], new: Mapping[str, Any]) -> str:
     return "; ".join(parts)
 
 
-def write_args(src: Path, dst: Path, tags: Mapping[str, Any], *, sidecar: bool = False) -> list[str]:
-    """The ExifTool command that writes `tags` into a copy of src at dst (a new file)."""
-    args = ["-n", *XMP_LAYOUT, "-XMP-icgt:all="]
+def write_args(
+    src: Path, dst: Path, tags: Mapping[str, Any], *, sidecar: bool = False, rewrap_xmp: bool = False
+) -> list[str]:
+    """The ExifTool command that writes `tags` into a copy of src at dst (a new file).
+
+    `rewrap_xmp`: the camera's XMP packet has no ``x:xmpmeta`` element (ExifTool keeps a packet's
+    shape): rebuild the packet from its own properties so that it gets one, as ODM and OpenSfM
+    find XMP by it.
+    """
+    args = ["-n", *XMP_LAYOUT]
+    if rewrap_xmp:
+        args += ["-XMP:all=", "-tagsFromFile", "@", "-XMP:all", *[f"--{t}" for t in CONFLICTING]]
+    args += ["-XMP-icgt:all="]
     if not sidecar:
         args += ["-GPS:all="]
         args += [f"-{t}=" for t in CONFLICTING if t not in tags]
@@ -201,6 +211,18 @@ def write_args(src: Path, dst: Path, tags: Mapping[str, Any], *, sidecar: bool =
     if sidecar:
         return [*args, str(dst)]  # ExifTool creates a new XMP file from these tags alone
     return [*args, "-o", str(dst), str(src)]
+
+
+XMP_APP1_HEADER = b"http://ns.adobe.com/xap/1.0/\x00"
+
+
+def xmp_lacks_wrapper(data: bytes) -> bool:
+    """The JPEG's XMP packet (APP1) has no x:xmpmeta element (a bare rdf:RDF, x:xapmeta is fine for ExifTool)."""
+    i = data.find(XMP_APP1_HEADER, 0, 1 << 20)
+    if i < 2:
+        return False
+    end = i - 2 + int.from_bytes(data[i - 2 : i], "big")
+    return b"<x:xmpmeta" not in data[i:end] and b"<x:xapmeta" not in data[i:end]
 
 
 def _seconds(hms: Any) -> float:

@@ -30,7 +30,7 @@ from tqdm import tqdm
 from icgt.export import ExportError
 from icgt.export.card import jpeg_damage, raw_siblings
 from icgt.export.common import ExportItem, ProblemLog
-from icgt.export.exif_tags import ICGT_TAGS, READ_TAGS, check_copy, intended_tags, write_args
+from icgt.export.exif_tags import ICGT_TAGS, READ_TAGS, check_copy, intended_tags, write_args, xmp_lacks_wrapper
 from icgt.export.exiftool_session import ExifToolSession
 
 FAR_GPS_M = 100.0
@@ -181,6 +181,7 @@ def _write_one(
     except OSError:
         pass
     b = before.get(src, {})
+    rewrap = False
     if not sidecar:
         try:
             data = src.read_bytes()
@@ -192,6 +193,10 @@ def _write_one(
             problems.add(name, seq, "error", "damaged_image", f"{damage}: no geotagged copy", "jpeg")
             return []
         _check_camera_gps(item, b, problems)
+        rewrap = xmp_lacks_wrapper(data)
+        if rewrap:
+            problems.add(name, seq, "info", "xmp_rewrapped", "the camera's XMP packet had no x:xmpmeta element "
+                         "(ODM and OpenSfM look for it): rewritten with one, its properties kept")  # fmt: skip
     tags = intended_tags(item, b, sidecar=sidecar)
     tmp = _tmp_name(dst)
     try:
@@ -200,7 +205,7 @@ def _write_one(
     except OSError as exc:
         problems.add(name, seq, "error", code, f"cannot write {dst}: {exc.strerror or exc}", "jpeg")
         return []
-    status, _, err = et.run(write_args(src, tmp, tags, sidecar=sidecar))
+    status, _, err = et.run(write_args(src, tmp, tags, sidecar=sidecar, rewrap_xmp=rewrap))
     if status != 0 or not tmp.exists():
         tmp.unlink(missing_ok=True)
         why = " ".join(err.split()) or f"exiftool exit status {status}"

@@ -86,7 +86,7 @@ def run_peer(items: list, before: dict, out: Path, cfg: Path) -> float:
     lines: list[str] = []
     for item in items:
         tags = intended_tags(item, before)
-        lines += [*write_args(item.image, out / item.image.name, tags), "-execute"]
+        lines += ["-q", *write_args(item.image, out / item.image.name, tags), "-execute"]
     argfile = out / "args.txt"
     argfile.write_text("\n".join(lines) + "\n", encoding="utf-8")
     t0 = time.perf_counter()

@@ -133,3 +133,37 @@ def test_existing_xmp_with_another_root_spelling_is_kept(tmp_path: Path, packet:
     data = (tmp_path / "out" / src.name).read_bytes()
     assert data.count(b"<x:xmpmeta") == 1  # one packet, with the root ODM and OpenSfM look for
     assert ("xmp_rewrapped" in {p.code for p in problems}) == packet.startswith("<rdf")
+
+
+def test_the_in_process_reader_agrees_with_exiftool_and_the_check_can_fail(tmp_path: Path) -> None:
+    from icgt.export.exif_tags import check_copy, intended_tags
+    from icgt.export.tag_reader import read_tags
+
+    src = jpeg(tmp_path / "DSC00001.JPG", make="DJI")
+    problems = ProblemLog()
+    items = prepare_items([(src, frame(1, 40.0, -80.0, 3.0))], None, problems)
+    assert write_geotagged_copies(items, tmp_path / "out", problems) == 1
+    copy = tmp_path / "out" / src.name
+    ours = read_tags(copy)
+    assert ours is not None
+    cmd = [
+        "exiftool",
+        "-j",
+        "-n",
+        "-G1",
+        "-a",
+        "-GPS:all",
+        "-XMP:all",
+        "-EXIF:Make",
+        "-Composite:GPSLatitude",
+        str(copy),
+    ]
+    theirs = json.loads(subprocess.run(cmd, capture_output=True, text=True, check=True).stdout)[0]
+    want = intended_tags(items[0], {"IFD0:Make": "DJI"})
+    assert check_copy(want, ours) == []
+    # ExifTool shows date-like XMP text in its own date spelling: that one is compared in our reader only
+    assert check_copy({k: v for k, v in want.items() if k != "XMP-icgt:MidExposureUTC"}, theirs) == []
+    assert len(want) > 30 and "XMP-drone-dji:GimbalPitchDegree" in ours
+    wrong = dict(ours, **{"GPS:GPSLatitude": ours["GPS:GPSLatitude"] + 1e-7})
+    del wrong["XMP-Camera:Yaw"]
+    assert len(check_copy(want, wrong)) == 2

@@ -10,8 +10,9 @@ whatever prefixes the camera used. exiv2 rebuilds the whole TIFF structure and r
 maker notes it knows from its parsed model, which is where maker-note damage comes from. ExifTool
 also writes XMP sidecars for every RAW format (ARW, DNG, NEF, CR2, CR3) with the same commands, and
 it is the tool the photogrammetry community checks files with (``exiftool -validate``). The cost is
-a Perl process: one stays open for the whole export (pyexiftool's ``-stay_open`` protocol), so
-each image costs one write and one batched read, not a process start.
+a Perl process: one stays open per CPU core for the whole export (pyexiftool's ``-stay_open``
+protocol), so each image costs one write, not a process start; the reads before and after are
+done in-process (`icgt.export.tag_reader`), ExifTool reading only what that cannot parse.
 
 The two XMP namespaces ExifTool 12.57 (Debian 12) does not define are declared in a generated
 ExifTool config file (`config_text`): Pix4D's camera namespace (``Camera:``, read by ODM,

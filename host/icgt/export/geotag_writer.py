@@ -1,8 +1,8 @@
 """Geotagged copies of the card's images (and XMP sidecars of its RAW files), each read back and checked.
 
 For every paired image: the original is checked whole (`icgt.export.card.jpeg_damage`), its
-tags are read (make, GPS, the camera's own pose tags), the copy is written next to its final name
-by ExifTool (`icgt.export.exif_tags` has the tags, `icgt.export.pose_tags` the pose rules), read
+tags are read (make, GPS, the camera's own pose tags; `icgt.export.tag_reader`), the copy is
+written next to its final name by ExifTool (`icgt.export.exif_tags` has the tags, `icgt.export.pose_tags` the pose rules), read
 back, compared with what was meant, and only then renamed into place. Each image that fails any
 step is a problem row (error, the copy is not left behind); the originals are only ever read.
 
@@ -28,10 +28,11 @@ from typing import Any
 from tqdm import tqdm
 
 from icgt.export import ExportError
-from icgt.export.card import jpeg_damage, raw_siblings
+from icgt.export.card import JPEG_SUFFIXES, jpeg_damage, raw_siblings
 from icgt.export.common import ExportItem, ProblemLog
 from icgt.export.exif_tags import ICGT_TAGS, READ_TAGS, check_copy, intended_tags, write_args, xmp_lacks_wrapper
 from icgt.export.exiftool_session import ExifToolSession
+from icgt.export.tag_reader import read_tags
 
 FAR_GPS_M = 100.0
 """A camera GPS further than this from the log's position is reported (GPS errors are metres, not 100 m)."""
@@ -57,9 +58,17 @@ def _ground_distance_m(lat1: float, lon1: float, lat2: float, lon2: float) -> fl
 
 
 def _read_all(et: ExifToolSession, files: Sequence[Path]) -> dict[Path, dict[str, Any]]:
+    """JPEGs in-process (icgt.export.tag_reader); RAW files, sidecars and what it cannot parse with ExifTool."""
     out: dict[Path, dict[str, Any]] = {}
-    for i in range(0, len(files), _BATCH):
-        out.update(et.read_json(files[i : i + _BATCH], READ_TAGS))
+    rest: list[Path] = []
+    for f in files:
+        tags = read_tags(f) if f.suffix.lower() in JPEG_SUFFIXES else None
+        if tags is None:
+            rest.append(f)
+        else:
+            out[f] = tags
+    for i in range(0, len(rest), _BATCH):
+        out.update(et.read_json(rest[i : i + _BATCH], READ_TAGS))
     return out
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from PIL import Image
 
-from icgt.export.card import jpeg_damage, scan_card
+from icgt.export.card import jpeg_damage, jpeg_file_damage, scan_card
 from icgt.export.cli import exit_status, report_card
 from icgt.export.common import ProblemLog, prepare_items
 from icgt.export.geotag_writer import write_geotagged_copies
@@ -102,6 +102,10 @@ def test_jpeg_damage_finds_cut_off_and_broken_files(tmp_path: Path) -> None:
     assert "cut off" in (jpeg_damage(data[: len(data) - 40]) or "")
     assert "cut off" in (jpeg_damage(data[:30]) or "")
     assert "not a JPEG" in (jpeg_damage(b"\x00\x05\x16\x07Mac OS X") or "")
+    for cut, expect in ((len(data), None), (len(data) - 40, "cut off"), (30, "cut off"), (2, "cut off")):
+        (tmp_path / "b.jpg").write_bytes(data[:cut])
+        got = jpeg_file_damage(tmp_path / "b.jpg")
+        assert (got is None) if expect is None else (expect in (got or "")), (cut, got)
 
 
 @pytest.mark.parametrize(

@@ -57,7 +57,60 @@ def raw_siblings(jpeg: Path, raws: list[Path]) -> list[Path]:
     return [r for r in raws if r.parent == jpeg.parent and r.stem.lower() == jpeg.stem.lower()]
 
 
-def jpeg_damage(data: bytes) -> str | None:
+_HEAD = 1 << 19  # metadata segments of camera JPEGs fit in the first 512 KiB (read more when they do not)
+_TAIL = 1 << 20
+
+
+def jpeg_header(path: Path) -> bytes:
+    """The bytes of a JPEG from its start to its first start-of-scan segment included (all its metadata segments)."""
+    with path.open("rb") as f:
+        data = f.read(_HEAD)
+        while True:
+            end = _scan_start(data)
+            if end is not None or len(data) % _HEAD:  # found, or the whole (short) file is in
+                return data if end is None else data[:end]
+            more = f.read(_HEAD)
+            if not more:
+                return data
+            data += more
+
+
+def _scan_start(data: bytes) -> int | None:
+    """Offset just past the first SOS segment header, None if the data ends before it."""
+    pos = 2
+    while pos + 4 <= len(data) and data[pos] == 0xFF:
+        marker = data[pos + 1]
+        if marker == 0xFF:
+            pos += 1
+            continue
+        length = int.from_bytes(data[pos + 2 : pos + 4], "big")
+        if marker == 0xDA:
+            return pos + 2 + length if pos + 2 + length <= len(data) else None
+        pos += 2 + length
+    return None
+
+
+def jpeg_file_damage(path: Path) -> str | None:
+    """`jpeg_damage` of a file, reading its headers and then its end backwards (not the whole image data)."""
+    head = jpeg_header(path)
+    size = path.stat().st_size
+    problem = jpeg_damage(head, whole=False)
+    if problem is not None:
+        return problem
+    start = len(head)
+    with path.open("rb") as f:
+        end = size
+        while end > start:
+            lo = max(start, end - _TAIL)
+            f.seek(lo)
+            block = f.read(end - lo + 1)  # one byte of overlap: a marker across two blocks
+            if b"\xff\xd9" in block:
+                return None
+            end = lo
+    return f"cut off: the image data stops at byte {size} without an end-of-image marker (truncated file)"
+
+
+def jpeg_damage(data: bytes, *, whole: bool = True) -> str | None:
     """Why a JPEG's bytes are not a whole image (cut off, broken markers), or None.
 
     Walks the marker segments to the first start-of-scan, then looks for the end-of-image marker:
@@ -85,6 +138,6 @@ def jpeg_damage(data: bytes) -> str | None:
         if marker == 0xDA:
             break
         pos += 2 + length
-    if data.rfind(b"\xff\xd9", pos + 2 + length) < 0:
+    if whole and data.rfind(b"\xff\xd9", pos + 2 + length) < 0:
         return f"cut off: the image data stops at byte {len(data)} without an end-of-image marker (truncated file)"
     return None

@@ -28,7 +28,7 @@ from typing import Any
 from tqdm import tqdm
 
 from icgt.export import ExportError
-from icgt.export.card import JPEG_SUFFIXES, jpeg_damage, raw_siblings
+from icgt.export.card import JPEG_SUFFIXES, jpeg_file_damage, jpeg_header, raw_siblings
 from icgt.export.common import ExportItem, ProblemLog
 from icgt.export.exif_tags import ICGT_TAGS, READ_TAGS, check_copy, intended_tags, write_args, xmp_lacks_wrapper
 from icgt.export.exiftool_session import ExifToolSession
@@ -193,16 +193,16 @@ def _write_one(
     rewrap = False
     if not sidecar:
         try:
-            data = src.read_bytes()
+            damage = jpeg_file_damage(src)
+            head = jpeg_header(src)
         except OSError as exc:
             problems.add(name, seq, "error", code, f"cannot read {src}: {exc.strerror or exc}", "jpeg")
             return []
-        damage = jpeg_damage(data)
         if damage is not None:
             problems.add(name, seq, "error", "damaged_image", f"{damage}: no geotagged copy", "jpeg")
             return []
         _check_camera_gps(item, b, problems)
-        rewrap = xmp_lacks_wrapper(data)
+        rewrap = xmp_lacks_wrapper(head)
         if rewrap:
             problems.add(name, seq, "info", "xmp_rewrapped", "the camera's XMP packet had no x:xmpmeta element "
                          "(ODM and OpenSfM look for it): rewritten with one, its properties kept")  # fmt: skip

@@ -95,8 +95,11 @@ def read_tags(path: Path) -> dict[str, Any] | None:
 
     logging.getLogger("exifread").setLevel(logging.ERROR)
     try:
-        data = path.read_bytes()
         from io import BytesIO
+
+        from icgt.export.card import jpeg_header
+
+        data = jpeg_header(path)
 
         tags = exifread.process_file(BytesIO(data), details=False)
         out: dict[str, Any] = {}

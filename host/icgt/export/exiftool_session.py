@@ -22,7 +22,6 @@ OpenSfM, Pix4D and Metashape) and ours (``icgt:``).
 from __future__ import annotations
 
 import shutil
-import subprocess
 import tempfile
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -79,16 +78,6 @@ def exiftool_path() -> str:
     return path
 
 
-def exiftool_version(path: str | None = None) -> tuple[int, int]:
-    exe = path or exiftool_path()
-    try:
-        out = subprocess.run([exe, "-ver"], capture_output=True, text=True, timeout=60, check=True).stdout.strip()
-        major, minor = out.split(".")[:2]
-        return int(major), int(minor)
-    except (OSError, subprocess.SubprocessError, ValueError) as exc:
-        raise ExportError(f"cannot run {exe} -ver: {exc}") from exc
-
-
 class ExifToolSession:
     """A context manager around one ``exiftool -stay_open`` process with our config loaded."""
 
@@ -96,11 +85,8 @@ class ExifToolSession:
         import exiftool  # pyexiftool
 
         exe = exiftool_path()
-        version = exiftool_version(exe)
-        if version < EXIFTOOL_MIN_VERSION:
-            want = ".".join(map(str, EXIFTOOL_MIN_VERSION))
-            raise ExportError(f"{exe} is ExifTool {version[0]}.{version[1]:02d}: the export needs {want} or later")
-        self.version = version
+        self._exe = exe
+        self.version: tuple[int, int] = (0, 0)
         self._dir = tempfile.TemporaryDirectory(prefix="icgt-exiftool-")
         cfg = Path(self._dir.name) / "icgt.config"
         cfg.write_text(config_text(icgt_tags), encoding="utf-8")
@@ -109,9 +95,17 @@ class ExifToolSession:
     def __enter__(self) -> ExifToolSession:
         try:
             self._et.run()
+            major, minor = str(self._et.version).split(".")[:2]
+            self.version = (int(major), int(minor))
         except Exception as exc:  # pyexiftool raises its own kinds when the process does not start
             self._dir.cleanup()
-            raise ExportError(f"cannot start exiftool: {exc}") from exc
+            raise ExportError(f"cannot start {self._exe}: {exc}") from exc
+        if self.version < EXIFTOOL_MIN_VERSION:
+            self.__exit__(None, None, None)
+            want = ".".join(map(str, EXIFTOOL_MIN_VERSION))
+            raise ExportError(
+                f"{self._exe} is ExifTool {self.version[0]}.{self.version[1]:02d}: {want} or later needed"
+            )
         return self
 
     def __exit__(

@@ -3,8 +3,9 @@
 For every paired image: the original is checked whole (`icgt.export.card.jpeg_damage`), its
 tags are read (make, GPS, the camera's own pose tags; `icgt.export.tag_reader`), the copy is
 written next to its final name by ExifTool (`icgt.export.exif_tags` has the tags,
-`icgt.export.pose_tags` the pose rules), read back, compared with what was meant, and only then renamed into place. Each image that fails any
-step is a problem row (error, the copy is not left behind); the originals are only ever read.
+`icgt.export.pose_tags` the pose rules), read back, compared with what was meant, and only then
+renamed into place. Each image that fails any step is a problem row (error, the copy is not left
+behind); the originals are only ever read.
 
 Problem rows written here: ``damaged_image`` (cut off or broken JPEG), ``jpeg_write_failed``
 (ExifTool refused or failed, its message quoted), ``jpeg_readback_mismatch`` (a tag did not read

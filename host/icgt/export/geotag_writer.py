@@ -159,15 +159,20 @@ def _run_share(
             sources += raw_siblings(item.image, raws)
         before = _read_all(et, sources)
         pending: list[_Pending] = []
-        for item in share:
-            assert item.image is not None
-            src = item.image
-            pending += _write_one(et, item, src, _destination(src, out_dir, images_root), before, problems)
-            for raw in raw_siblings(src, raws):
-                dst = _destination(raw, out_dir, images_root).with_suffix(".xmp")
-                pending += _write_one(et, item, raw, dst, before, problems, sidecar=True)
-            bar.update(1)
-        after = _read_all(et, [p.tmp for p in pending])
+        try:
+            for item in share:
+                assert item.image is not None
+                src = item.image
+                pending += _write_one(et, item, src, _destination(src, out_dir, images_root), before, problems)
+                for raw in raw_siblings(src, raws):
+                    dst = _destination(raw, out_dir, images_root).with_suffix(".xmp")
+                    pending += _write_one(et, item, raw, dst, before, problems, sidecar=True)
+                bar.update(1)
+            after = _read_all(et, [p.tmp for p in pending])
+        except BaseException:  # ExifTool died, Ctrl-C: no half-checked copies left behind
+            for p in pending:
+                p.tmp.unlink(missing_ok=True)
+            raise
     return sum(_finish(p, after.get(p.tmp, {}), problems) for p in pending)
 
 

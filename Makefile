@@ -70,6 +70,12 @@ firmware-checks:
 test: venv build lint fuzz firmware-checks
 	ctest --test-dir $(BUILD) --output-on-failure
 	ICGT_BUILD_DIR=$(BUILD) $(VENV)/bin/pytest -q --timeout 600 -p no:cacheprovider tests
+	.ci/min_versions.sh
+
+# The lower bounds of host/pyproject.toml installed exactly, in build/venv-min, with the export tests.
+.PHONY: min-versions
+min-versions:
+	.ci/min_versions.sh
 
 # Figures next to their peers, measured in the same run (shared, noisy machines: not timed tests).
 bench: venv build
@@ -77,6 +83,7 @@ bench: venv build
 	$(PY) benchmarks/clock_sync.py
 	$(PY) benchmarks/mcap_write.py
 	$(PY) benchmarks/recorder_flight.py --scenario deck_pass --out bench-out/recorder
+	$(PY) benchmarks/geotag_write.py
 
 clean:
 	rm -rf build $(VENV) demo-out

@@ -106,8 +106,10 @@ def _cmd_recover(args: argparse.Namespace) -> int:
 
     src: Path = args.source
     dst: Path = args.output or src.with_name(src.stem + "-recovered.mcap")
-    print(recover(src, dst).describe())
-    return 0
+    report = recover(src, dst)
+    print(report.describe())
+    # 1: damaged records or chunks in the middle were skipped (data may be lost); a cut-off tail is what a crash leaves
+    return 1 if report.lossy else 0
 
 
 def _cmd_sim(args: argparse.Namespace) -> int:
@@ -180,7 +182,10 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--count", type=int, default=0, help="shots (0: until stopped)")
         p.set_defaults(func=func)
 
-    rec = sub.add_parser("recover", help="turn an unfinished MCAP (killed recorder, power cut) into a complete one")
+    rec = sub.add_parser(
+        "recover",
+        help="turn an unfinished or damaged MCAP into a complete one (exit 1 if damaged records were skipped)",
+    )
     rec.add_argument("source", type=Path)
     rec.add_argument("output", type=Path, nargs="?", help="default: SOURCE-recovered.mcap")
     rec.set_defaults(func=_cmd_recover)

@@ -47,6 +47,7 @@ from icgt.ingest import read
 from icgt.sim.scenario import load_scenario
 
 from .geojson_rules import check as check_geojson
+from .odm_rules import camera_axes_ned, rotation
 
 HERE = Path(__file__).resolve().parent
 BASE = np.array([0.5, 0.5, 0.5, 0.5])
@@ -133,7 +134,7 @@ def _problems(run: Run) -> list[dict[str, str]]:
 
 
 def test_export_completes_and_originals_are_untouched(run: Run) -> None:
-    assert run.exit_code == 0
+    assert run.exit_code == 1  # problems.csv has error rows (an unmatched image, one without an EXIF time)
     assert "exported" in run.stdout and "problems" in run.stdout
     assert _hashes(run.card) == run.hashes_before
     copies = sorted((run.out / "images").glob("*.JPG"))
@@ -148,7 +149,10 @@ def test_every_input_problem_is_reported_per_image(run: Run) -> None:
     first, fifth = sorted(run.hashes_before)[0], sorted(run.hashes_before)[5]
     assert {(p["severity"], p["code"]) for p in by_image[first]} == {("error", "no_exif_time")}
     assert first not in run.rows
-    assert {(p["severity"], p["code"]) for p in by_image[fifth]} == {("warning", "no_exif_time")}
+    # (a loaded machine can add a pose_quality warning: the simulated autopilot's messages come late)
+    assert {(p["severity"], p["code"]) for p in by_image[fifth]} - {("warning", "pose_quality")} == {
+        ("warning", "no_exif_time")
+    }
     assert fifth in run.rows  # placed between its timed neighbours, and exported
     assert [(p["severity"], p["code"]) for p in by_image["DSC09999.JPG"]] == [("error", "unmatched_image")]
     missed = [p for p in problems if p["code"] == "frame_feedback_missing"]
@@ -260,7 +264,9 @@ def test_geo_txt_follows_odm_rules(run: Run) -> None:
         assert y == pytest.approx(float(row["Latitude"]), abs=2e-9)
         assert z == pytest.approx(float(row["Altitude"]), abs=1e-4)
         assert angles is not None and acc is not None
-        assert angles == pytest.approx([float(row["Yaw"]), float(row["Pitch"]), float(row["Roll"])], abs=1e-4)
+        q = tuple(float(row[k]) for k in ("cam_qw", "cam_qx", "cam_qy", "cam_qz"))
+        # ODM's convention (odm_rules): the rotation ODM builds from the three angles is the camera's
+        np.testing.assert_allclose(rotation(*angles), camera_axes_ned(q), atol=1e-5)
         assert acc == pytest.approx([float(row["h_acc_m"]), float(row["v_acc_m"])], abs=1e-3)
 
 

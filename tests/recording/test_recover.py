@@ -149,3 +149,49 @@ def test_paths_are_checked(tmp_path: Path) -> None:
         recover(tmp_path, tmp_path / "out.mcap")
     with pytest.raises(RecordingError, match="the source itself"):
         recover(src, src)
+
+
+def _records(data: bytes) -> list[tuple[int, int, int]]:
+    """(offset, opcode, length) of every top-level record, walking the framing of an intact file."""
+    out, pos = [], len(MAGIC)
+    while pos + 9 <= len(data):
+        opcode, length = data[pos], int.from_bytes(data[pos + 1 : pos + 9], "little")
+        out.append((pos, opcode, length))
+        if opcode == 0x02:
+            break
+        pos += 9 + length
+    return out
+
+
+def test_zeroed_message_indexes_are_skipped_and_every_chunk_is_kept(tmp_path: Path) -> None:
+    """A complete log with 4 KB zeroed inside its message-index records: resynchronise at the next chunk."""
+    src = _recording(tmp_path / "src.mcap", chunks=6, per_chunk=400)
+    data = bytearray(src.read_bytes())
+    records = _records(bytes(data))
+    first_index = next(pos for pos, op, _ in records if op == 0x07)
+    next_chunk = next(pos for pos, op, _ in records if op == 0x06 and pos > first_index)
+    assert next_chunk - first_index > 4096  # the zeros stay inside the indexes
+    data[first_index : first_index + 4096] = bytes(4096)
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    report = recover(bad, tmp_path / "fixed.mcap")
+    assert report.messages == 2400 and report.chunks_kept == 6 and report.chunks_damaged == 0
+    assert report.lossy and len(report.skipped) == 1
+    start, end, why = report.skipped[0]
+    assert start == first_index and end == next_chunk and "opcode 0x00" in why
+    assert f"skipped bytes {start}-{end}" in report.describe()
+    lats = [m[3].latitude for m in read_complete(tmp_path / "fixed.mcap").messages]
+    assert lats == [float(n) for n in range(2400)]
+
+
+def test_overwritten_bytes_between_chunks_and_a_damaged_chunk(tmp_path: Path) -> None:
+    src = _recording(tmp_path / "src.mcap", chunks=6, per_chunk=40)
+    data = bytearray(src.read_bytes())
+    chunks = [pos for pos, op, _ in _records(bytes(data)) if op == 0x06]
+    data[chunks[1] : chunks[1] + 9] = b"\xa5" * 9  # the second chunk's framing overwritten: that chunk is lost
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    report = recover(bad, tmp_path / "fixed.mcap")
+    assert report.messages == 200 and report.chunks_kept == 5 and report.skipped[0][1] == chunks[2]
+    lats = [m[3].latitude for m in read_complete(tmp_path / "fixed.mcap").messages]
+    assert lats == [float(n) for n in range(240) if not 40 <= n < 80]

@@ -6,7 +6,9 @@
 - cameras.geojson / footprints.geojson: camera points and image footprints (geojson_export);
 - geo.txt: OpenDroneMap's image geolocation file (odm);
 - exif_overrides.json: OpenSfM's per-image overrides (opensfm);
-- images/: geotagged copies of the JPEGs, EXIF GPS + XMP attitude, pixels untouched (exif_tags);
+- images/: geotagged copies of the JPEGs written by ExifTool (geotag_writer; tags in exif_tags,
+  pose conventions in pose_tags), every other tag and the pixels untouched, each read back and
+  checked; XMP sidecars for RAW files shot with a JPEG (card: hidden files, RAW, HEIC, damage);
 - problems.csv: every input problem, per image.
 
 The writers take `ExportItem`s made by `prepare_items` from `(image path, FrameRecord)` pairs.

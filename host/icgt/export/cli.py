@@ -9,7 +9,15 @@ cameras.geojson, footprints.geojson, icgt.kml (absolute MSL heights), geo.txt, e
 images/ (geotagged copies; the originals are only read), with ``ros2`` the ROS 2 bag ros2/ (not by
 default: it holds every sensor sample) and problems.csv (one row per input problem:
 no fix, zero GPS, no UTC, an image without EXIF time or without an exposure, an exposure without an
-image...). One bad image never stops the export.
+image, a damaged image, a camera GPS far from the log, HEIC files, RAW files without their JPEG;
+hidden and macOS AppleDouble ``._*`` files are skipped and listed as info rows). One bad image never
+stops the export. RAW files next to a paired JPEG of the same name get an XMP sidecar (NAME.xmp in
+images/, beside the JPEG's copy) with the same geotag: put it next to the RAW file.
+
+Exit status: 0 when everything was exported and problems.csv has no error or warning row (info rows
+only); 1 when it has errors or warnings (the export is still written: read problems.csv), and 1
+with a message on standard error when no export could be made at all (no frames, unreadable log,
+output folder unusable, exiftool missing).
 """
 
 from __future__ import annotations
@@ -27,6 +35,7 @@ from icgt.errors import IcgtError
 from icgt.export import ExportError
 
 if TYPE_CHECKING:  # the heavy modules load when a command runs, not when the parser is built
+    from icgt.export.card import CardScan
     from icgt.export.common import ExportItem, ProblemLog
     from icgt.geometry import CameraModel, Plane
     from icgt.geotag.record import FrameRecord
@@ -64,11 +73,12 @@ def export_items(
     geoid_separation_m: float | None = None,
     progress: bool = False,
     images_root: Path | None = None,
+    raws: Sequence[Path] = (),
 ) -> dict[str, int]:
     """Write the requested formats for prepared items; returns what each wrote (rows, features, images)."""
     from icgt.export.csv_export import write_csv
-    from icgt.export.exif_tags import write_geotagged_copies
     from icgt.export.geojson_export import write_geojson
+    from icgt.export.geotag_writer import write_geotagged_copies
     from icgt.export.odm import GEO_TXT, write_geo_txt
     from icgt.export.opensfm import EXIF_OVERRIDES, write_exif_overrides
 
@@ -96,7 +106,7 @@ def export_items(
         written["exif_overrides entries"] = write_exif_overrides(out_dir / EXIF_OVERRIDES, items)
     if "jpeg" in wanted:
         written["geotagged jpegs"] = write_geotagged_copies(
-            items, out_dir / IMAGES_DIR, problems, progress=progress, images_root=images_root
+            items, out_dir / IMAGES_DIR, problems, progress=progress, images_root=images_root, raws=raws
         )
     return written
 
@@ -152,6 +162,24 @@ def geoid_separation_from_log(recording: Any) -> float | None:
     except IcgtError as exc:
         log.warning("cannot read the geoid separation from the log: %s", exc)
     return None
+
+
+def report_card(scan: CardScan, paired: set[Path], problems: ProblemLog) -> None:
+    """Rows for what the card holds besides paired JPEGs: hidden files, HEIC, RAW without a paired JPEG."""
+    from icgt.export.card import raw_siblings
+
+    for p in scan.hidden:
+        problems.add(
+            p.name, None, "info", "hidden_file_skipped", f"{p}: hidden or macOS AppleDouble file, not an image"
+        )
+    for p in scan.heic:
+        problems.add(p.name, None, "error", "heic_not_supported",
+                     f"{p}: HEIC/HEIF images are not read (convert them to JPEG first)", "all")  # fmt: skip
+    with_jpeg = {r for j in paired for r in raw_siblings(j, scan.raw)}
+    for p in scan.raw:
+        if p not in with_jpeg:
+            problems.add(p.name, None, "warning", "raw_without_jpeg",
+                         f"{p}: no paired JPEG of this name in its folder: no sidecar", "xmp-sidecar")  # fmt: skip
 
 
 def match_pairs(
@@ -287,14 +315,20 @@ def run_export(
     geoid = geoid_separation_from_log(recording) if geoid_separation == "auto" else geoid_separation
     assert geoid is None or isinstance(geoid, float)
     pairs: list[tuple[Path | None, FrameRecord, float | None]]
+    raws: list[Path] = []
     if images is not None:
+        from icgt.export.card import scan_card
+
+        scan = scan_card(images)
         pairs = match_pairs(frames, images, problems, progress=progress)
+        report_card(scan, {p[0] for p in pairs if p[0] is not None}, problems)
+        raws = scan.raw
     else:
         pairs = [(None, f, None) for f in frames]
     items = prepare_items(pairs, projector, problems)
     wanted = [f for f in formats if f != "jpeg" or images is not None]
     written = export_items(
-        items, out_dir, wanted, problems, geoid_separation_m=geoid, progress=progress, images_root=images
+        items, out_dir, wanted, problems, geoid_separation_m=geoid, progress=progress, images_root=images, raws=raws
     )
     if "ros2" in wanted:
         from icgt.export.ros2 import write_ros2_bag
@@ -325,7 +359,12 @@ def cmd_export(args: argparse.Namespace) -> int:
                 "%s%s: %s: %s", p.image or "", f" (frame {p.frame_seq})" if p.frame_seq else "", p.code, p.detail
             )
     print(result.describe(), file=sys.stdout)
-    return 0
+    return exit_status(result.problems)
+
+
+def exit_status(problems: ProblemLog) -> int:
+    """0: everything exported with nothing to distrust (info rows only); 1: problems.csv has errors or warnings."""
+    return 1 if any(p.severity in ("error", "warning") for p in problems) else 0
 
 
 def add_export_arguments(parser: argparse.ArgumentParser) -> None:

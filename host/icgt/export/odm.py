@@ -6,10 +6,12 @@ here ``EPSG:4326``; then one line per image, fields separated by whitespace::
     image_name  geo_x  geo_y  [geo_z]  [yaw  pitch  roll]  [horz_accuracy  vert_accuracy]  [extras...]
 
 With EPSG:4326, geo_x is the LONGITUDE and geo_y the LATITUDE [deg]; geo_z is the altitude [m]
-(here above mean sea level, as in EXIF). The angles [deg] are the camera's in the gimbal convention
-(`icgt.geometry.camera_angles_deg`: yaw compass heading of the optical axis, pitch -90 looking down,
-roll about the optical axis); ODM reads them positionally (columns 5-7 only when a line has at
-least 7 fields, the accuracies only with 9), and documents 0 for angles that are not known. The
+(here above mean sea level, as in EXIF). The angles [deg] are the camera's in ODM's convention
+(`icgt.export.pose_tags.odm_angles`: ODM builds its rotation from them with Baeumker's
+yaw-pitch-roll matrix; yaw 0 and pitch 0 is a camera looking straight down with the top of the
+image to the north, pitch 90 looks level; ODM uses geo.txt angles as they are, with no per-make
+correction); ODM reads them positionally (columns 5-7 only when a line has at least 7 fields, the
+accuracies only with 9), and documents 0 for angles that are not known. The
 accuracies [m] are the GPS's horizontal and vertical accuracy estimates. File names must not
 contain whitespace (ODM splits on it); such images are reported and left out.
 """
@@ -23,6 +25,7 @@ from tqdm import tqdm
 
 from icgt.export import ExportError
 from icgt.export.common import ExportItem, ProblemLog
+from icgt.export.exif_tags import item_odm_angles
 
 GEO_TXT = "geo.txt"
 PROJECTION = "EPSG:4326"
@@ -35,7 +38,8 @@ def geo_line(item: ExportItem) -> str | None:
         return None
     assert rec.lon_deg is not None and rec.lat_deg is not None and rec.alt_msl_m is not None
     fields = [item.name, f"{rec.lon_deg:.9f}", f"{rec.lat_deg:.9f}", f"{rec.alt_msl_m:.4f}"]
-    yaw, pitch, roll = item.angles if item.angles is not None else (0.0, 0.0, 0.0)
+    angles = item_odm_angles(item)
+    yaw, pitch, roll = angles if angles is not None else (0.0, 0.0, 0.0)
     fields += [f"{yaw:.4f}", f"{pitch:.4f}", f"{roll:.4f}"]
     if rec.h_acc_m is not None and rec.v_acc_m is not None:
         fields += [f"{rec.h_acc_m:.3f}", f"{rec.v_acc_m:.3f}"]

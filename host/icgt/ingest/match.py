@@ -272,10 +272,20 @@ def _natural_key(path: Path) -> list[Any]:
 
 
 def list_images(directory: Path) -> list[Path]:
-    """The JPEGs in a folder and its subfolders (DCIM/100MSDCF, 101MSDCF, ...) in the camera's numbering order."""
+    """The JPEGs in a folder and its subfolders (DCIM/100MSDCF, 101MSDCF, ...) in the camera's numbering order.
+
+    Hidden files and folders are not images: macOS writes an AppleDouble file ``._NAME.JPG`` next to
+    every file it touches on a FAT card, and keeps ``.Trashes`` and ``.Spotlight-V100`` there.
+    """
     if not directory.is_dir():
         raise MatchError(f"{directory}: not a folder")
-    paths = [p for p in directory.rglob("*") if p.is_file() and p.suffix.lower() in _JPEG_SUFFIXES]
+    paths = [
+        p
+        for p in directory.rglob("*")
+        if p.is_file()
+        and p.suffix.lower() in _JPEG_SUFFIXES
+        and not any(part.startswith(".") for part in p.relative_to(directory).parts)
+    ]
     return sorted(paths, key=_natural_key)
 
 

@@ -334,9 +334,17 @@ class Recording:
         return dict(self._counts)
 
     def frames(self) -> Iterator[FrameRecord]:
-        """The /frames records in log order (as the recorder emitted them), streaming."""
+        """The /frames records in log order (as the recorder emitted them), streaming.
+
+        Raises IngestError for a file that is not an ICGT recording (its /frames is not ICGT's JSON
+        FrameRecord, or it has neither /frames nor icgt.* metadata).
+        """
+        self._check_icgt()
         for msg in self._iter(frozenset({FRAMES_TOPIC}), decode=True):
-            yield decode_frame(msg.data)
+            try:
+                yield decode_frame(msg.data)
+            except IngestError as exc:
+                raise IngestError(f"{self.path}: {exc}") from None
 
     def frame_table(self) -> FrameTable:
         """All frames as columns (see FrameTable)."""
@@ -352,6 +360,52 @@ class Recording:
         yield from self._iter(frozenset(topics) if topics is not None else None, decode=True)
 
     # --- internals --------------------------------------------------------------------------------
+    def _check_icgt(self) -> None:
+        """IngestError unless this looks like an ICGT recording (what else the file holds is said)."""
+        channels = self._channels()
+        frames = [c for c in channels if c[0] == FRAMES_TOPIC]
+        foreign = [c for c in frames if c[1] != "json"]
+        if foreign:
+            topic, encoding, schema = foreign[0]
+            raise IngestError(
+                f"{self.path}: not an ICGT recording: its {topic} channel carries {encoding} messages "
+                f"(schema {schema!r}), ICGT records frames as JSON FrameRecords"
+            )
+        # icgt.recording is written by the MCAP writer itself, whatever it records: not a sign of the recorder
+        recorder = [n for n in self.metadata if n.startswith("icgt.") and n != "icgt.recording"]
+        if not frames and not recorder:
+            topics = ", ".join(sorted({c[0] for c in channels})[:8]) or "none"
+            raise IngestError(
+                f"{self.path}: not an ICGT recording: no {FRAMES_TOPIC} channel and no metadata of the ICGT "
+                f"recorder (icgt.config, icgt.device, ...; its topics: {topics})"
+            )
+
+    def _channels(self) -> list[tuple[str, str, str]]:
+        """(topic, message encoding, schema name) of every channel."""
+        if self.complete:
+            from mcap.reader import SeekingReader
+
+            with self._open() as f:
+                try:
+                    summary = SeekingReader(f).get_summary()
+                except self._errors as exc:
+                    raise IngestError(_damaged_message(self.path, exc)) from None
+            if summary is not None:
+                return [
+                    (c.topic, c.message_encoding, getattr(summary.schemas.get(c.schema_id), "name", ""))
+                    for c in summary.channels.values()
+                ]
+        from mcap.records import Channel, Schema
+
+        names: dict[int, str] = {}
+        out: list[tuple[int, str, str]] = []
+        for record in self._stream_records():
+            if isinstance(record, Schema):
+                names[record.id] = record.name
+            elif isinstance(record, Channel):
+                out.append((record.schema_id, record.topic, record.message_encoding))
+        return [(topic, enc, names.get(sid, "")) for sid, topic, enc in out]
+
     def _open(self) -> IO[bytes]:
         try:
             return self.path.open("rb")
@@ -370,7 +424,12 @@ class Recording:
                     from google.protobuf.json_format import MessageToDict
                     from mcap_protobuf.decoder import DecoderFactory
 
-                    inner = DecoderFactory().decoder_for("protobuf", schema)
+                    try:
+                        inner = DecoderFactory().decoder_for("protobuf", schema)
+                    except Exception as exc:  # a schema that is not a FileDescriptorSet
+                        raise IngestError(
+                            f"cannot decode {topic}: protobuf schema {schema.name!r} unreadable ({exc})"
+                        ) from None
                     if inner is None:
                         raise IngestError(f"cannot decode {topic}: protobuf schema {schema.name!r} unreadable")
 
@@ -378,7 +437,10 @@ class Recording:
                         return MessageToDict(inner(raw), preserving_proto_field_name=True)
 
                     protobuf[schema.id] = fn
-                return cast(dict[str, Any], fn(data))
+                try:
+                    return cast(dict[str, Any], fn(data))
+                except Exception as exc:  # protobuf's DecodeError and friends on damaged or foreign bytes
+                    raise IngestError(f"cannot decode a message on {topic} (protobuf {schema.name}): {exc}") from None
             raise IngestError(f"cannot decode {topic}: message encoding {encoding!r} is not supported")
 
         return decode

@@ -1,9 +1,15 @@
 """`icgt recover`: turn an unfinished MCAP file (recorder killed, power cut, disk full) into a complete one.
 
-The source is read front to back with the official reader's stream mode (`mcap.stream_reader.StreamReader`)
-through a strict byte source that refuses short reads, so a record cut off by the crash ends the
-reading at the last complete record instead of being half-parsed. Every chunk is checked against its
-CRC and unpacked on its own: a damaged chunk is skipped and counted, the ones after it are still kept.
+The source is walked record by record (MCAP's framing: opcode, 64-bit length, body), each body
+parsed by the official library's record classes (`mcap.records`) through a strict byte source
+that refuses short reads, so a record cut off by the crash is never half-parsed. Every chunk is
+checked against its CRC and unpacked on its own: a damaged chunk is skipped and counted, the ones
+after it are still kept. A record that cannot be parsed at all (zeroed or overwritten bytes, a bad
+length) does not end the reading: the walk resynchronises at the next offset that holds a whole
+chunk record whose CRC checks (a scan for the chunk opcode), and the skipped byte range is
+reported (`RecoveryReport.skipped`). Only a damaged tail with no intact chunk after it is discarded.
+The mcap library's StreamReader stops at the first bad record, hence this walk (the framing is
+MCAP's, the parsing the library's).
 Schemas, channels, messages (with their original ids, sequence numbers and times), metadata and
 attachments go into a new file with a summary, chunk and message indexes and statistics.
 Times in the report: nanoseconds since the Unix epoch, as recorded.
@@ -11,15 +17,36 @@ Times in the report: nanoseconds since the Unix epoch, as recorded.
 
 from __future__ import annotations
 
+import io
+import mmap
 import os
 from collections import Counter
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, cast
 
-from mcap.exceptions import McapError
-from mcap.records import Attachment, Channel, Chunk, Footer, Header, McapRecord, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.data_stream import ReadDataStream
+from mcap.opcode import Opcode
+from mcap.records import (
+    Attachment,
+    AttachmentIndex,
+    Channel,
+    Chunk,
+    ChunkIndex,
+    DataEnd,
+    Footer,
+    Header,
+    McapRecord,
+    Message,
+    MessageIndex,
+    Metadata,
+    MetadataIndex,
+    Schema,
+    Statistics,
+    SummaryOffset,
+)
+from mcap.stream_reader import breakup_chunk
 
 from icgt.recording.writer import LIBRARY, MAGIC, McapFileWriter, RecordingError, iso_utc
 
@@ -68,6 +95,13 @@ class RecoveryReport:
     attachments: int = 0
     source_was_complete: bool = False
     end_reason: str = ""
+    skipped: list[tuple[int, int, str]] = field(default_factory=list)
+    """Damaged byte ranges [start, end) in the middle of the file that were skipped, and why."""
+
+    @property
+    def lossy(self) -> bool:
+        """Something in the middle of the file was unreadable (skipped ranges or damaged chunks)."""
+        return bool(self.skipped or self.chunks_damaged)
 
     @property
     def bytes_discarded(self) -> int:
@@ -85,6 +119,8 @@ class RecoveryReport:
             f"source {'was already complete' if self.source_was_complete else 'was unfinished'}: {self.end_reason}; "
             f"{self.bytes_discarded} bytes of damaged tail discarded, {self.chunks_damaged} damaged chunks skipped",
         ]
+        for start, end, why in self.skipped:
+            lines.append(f"skipped bytes {start}-{end} ({end - start} bytes): {why}")
         if self.messages_without_channel:
             lines.append(f"{self.messages_without_channel} messages dropped: their channel record was lost")
         lines += [f"  {topic}: {n}" for topic, n in sorted(self.messages_per_topic.items())]
@@ -116,7 +152,7 @@ def recover(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> Recover
             raise RecordingError(f"cannot create {destination}: {exc.strerror or exc}") from None
         try:
             with out:
-                _copy(_StrictSource(handle, report.source_bytes), out, report)
+                _copy(handle, out, report)
         except BaseException:
             destination.unlink(missing_ok=True)
             raise
@@ -130,44 +166,133 @@ def _check_magic(head: bytes, source: Path) -> None:
         raise RecordingError(f"{source} is not an MCAP file (it does not start with the MCAP magic bytes)")
 
 
-def _copy(source: _StrictSource, out: IO[bytes], report: RecoveryReport) -> None:
-    records = StreamReader(cast(IO[bytes], source), emit_chunks=True).records
+_RECORDS: dict[int, type[McapRecord]] = {
+    Opcode.ATTACHMENT: Attachment,
+    Opcode.ATTACHMENT_INDEX: AttachmentIndex,
+    Opcode.CHANNEL: Channel,
+    Opcode.CHUNK: Chunk,
+    Opcode.CHUNK_INDEX: ChunkIndex,
+    Opcode.DATA_END: DataEnd,
+    Opcode.FOOTER: Footer,
+    Opcode.HEADER: Header,
+    Opcode.MESSAGE: Message,
+    Opcode.MESSAGE_INDEX: MessageIndex,
+    Opcode.METADATA: Metadata,
+    Opcode.METADATA_INDEX: MetadataIndex,
+    Opcode.SCHEMA: Schema,
+    Opcode.STATISTICS: Statistics,
+    Opcode.SUMMARY_OFFSET: SummaryOffset,
+}
+_CHUNK_COMPRESSIONS = ("", "zstd", "lz4")
+
+
+class _DamagedError(Exception):
+    """No whole, parsable record at an offset."""
+
+
+def _parse_at(buf: bytes | mmap.mmap, pos: int, size: int) -> tuple[McapRecord, int]:
+    """The record at `pos` and the offset after it; raises _DamagedError (cut off, unknown opcode, unparsable)."""
+    if pos + 9 > size:
+        raise _DamagedError(f"the file ends inside a record header at offset {pos}")
+    opcode = buf[pos]
+    length = int.from_bytes(buf[pos + 1 : pos + 9], "little")
+    cls = _RECORDS.get(opcode)
+    if cls is None:
+        raise _DamagedError(f"no MCAP record at offset {pos} (opcode {opcode:#04x})")
+    end = pos + 9 + length
+    if end > size:
+        raise _DamagedError(f"a {cls.__name__} record at offset {pos} runs {end - size} bytes past the end of the file")
+    body = bytes(buf[pos + 9 : end])
+    stream = ReadDataStream(cast(IO[bytes], _StrictSource(io.BytesIO(body), length)))
+    try:
+        record = Message.read(stream, length) if cls is Message else cls.read(stream)  # type: ignore[attr-defined]
+    except Exception as exc:  # garbage can fail in any way inside the library's parsers
+        raise _DamagedError(f"unreadable {cls.__name__} record at offset {pos} ({_why(exc)})") from None
+    return cast(McapRecord, record), end
+
+
+def _intact_chunk_at(buf: bytes | mmap.mmap, pos: int, size: int) -> bool:
+    try:
+        record, _ = _parse_at(buf, pos, size)
+    except _DamagedError:
+        return False
+    if not isinstance(record, Chunk) or record.compression not in _CHUNK_COMPRESSIONS:
+        return False
+    try:
+        return bool(breakup_chunk(record, validate_crc=True))
+    except Exception:  # not a chunk after all: keep scanning
+        return False
+
+
+def _next_chunk(buf: bytes | mmap.mmap, start: int, size: int) -> int | None:
+    """Offset of the next whole chunk record with a good CRC at or after `start` (scanning for its opcode)."""
+    pos = buf.find(bytes((Opcode.CHUNK,)), start)
+    while 0 <= pos < size:
+        if _intact_chunk_at(buf, pos, size):
+            return pos
+        pos = buf.find(bytes((Opcode.CHUNK,)), pos + 1)
+    return None
+
+
+def _walk(buf: bytes | mmap.mmap, size: int, report: RecoveryReport) -> Iterator[McapRecord]:
+    pos = len(MAGIC)
+    while pos < size:
+        try:
+            record, end = _parse_at(buf, pos, size)
+        except _DamagedError as exc:
+            nxt = _next_chunk(buf, pos + 1, size)
+            if nxt is None:
+                report.end_reason = f"stopped at offset {pos}: {exc}"
+                return
+            report.skipped.append((pos, nxt, str(exc)))
+            pos = nxt
+            continue
+        pos = end
+        report.good_bytes = end
+        yield record
+        if isinstance(record, Footer):
+            if bytes(buf[end : end + len(MAGIC)]) == MAGIC:
+                report.good_bytes = end + len(MAGIC)
+                report.end_reason = "read to the end"
+            else:
+                report.end_reason = f"the footer at offset {pos} is not followed by the closing magic"
+            return
+    report.end_reason = "the file ends after a complete record (no footer)"
+
+
+def _copy(handle: IO[bytes], out: IO[bytes], report: RecoveryReport) -> None:
+    size = report.source_bytes
+    buf: bytes | mmap.mmap = mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ) if size else b""
     writer: McapFileWriter | None = None
     channels: dict[int, Channel] = {}  # channels whose schema is known: their messages can be kept
     counts: Counter[str] = Counter()
     try:
-        while True:
-            try:
-                record = next(records)
-            except StopIteration:  # only after the footer and the closing magic
-                report.good_bytes = source.position
-                report.end_reason = "read to the end"
-                break
-            except (_TruncatedError, McapError) as exc:
-                report.end_reason = f"stopped at offset {report.good_bytes}: {_why(exc)}"
-                break
-            except Exception as exc:  # garbage must end the reading, never the program
-                report.end_reason = f"stopped at offset {report.good_bytes}: unreadable record ({type(exc).__name__})"
-                break
-            report.good_bytes = source.position
+        try:
+            report.good_bytes = len(MAGIC)
+            for record in _walk(buf, size, report):
+                if writer is None:
+                    if not isinstance(record, Header):
+                        raise RecordingError(f"{report.source} is not an MCAP file: it does not begin with a header")
+                    writer = McapFileWriter(
+                        out, profile=record.profile, library=f"{record.library}; recovered by {LIBRARY}"
+                    )
+                    continue
+                if isinstance(record, Footer):
+                    report.source_was_complete = not report.skipped
+                _copy_record(record, writer, channels, counts, report)
             if writer is None:
-                if not isinstance(record, Header):
-                    raise RecordingError(f"{report.source} is not an MCAP file: it does not begin with a header")
-                writer = McapFileWriter(
-                    out, profile=record.profile, library=f"{record.library}; recovered by {LIBRARY}"
+                raise RecordingError(f"{report.source} is not an MCAP file: {report.end_reason}")
+            if not counts:
+                raise RecordingError(
+                    f"{report.source} holds no complete chunk: nothing to recover ({report.end_reason})"
                 )
-                continue
-            if isinstance(record, Footer):
-                report.source_was_complete = True
-            _copy_record(record, writer, channels, counts, report)
-        if writer is None:
-            raise RecordingError(f"{report.source} is not an MCAP file: {report.end_reason}")
-        if not counts:
-            raise RecordingError(f"{report.source} holds no complete chunk: nothing to recover ({report.end_reason})")
-        writer.finish()
-        writer.sync()
-    except OSError as exc:
-        raise RecordingError(f"cannot write {report.destination}: {exc.strerror or exc}") from None
+            writer.finish()
+            writer.sync()
+        except OSError as exc:
+            raise RecordingError(f"cannot write {report.destination}: {exc.strerror or exc}") from None
+    finally:
+        if isinstance(buf, mmap.mmap):
+            buf.close()
     report.messages_per_topic = dict(counts)
 
 

@@ -23,11 +23,8 @@ until it works again or the link is stopped. `send()` may be called from any thr
 from __future__ import annotations
 
 import contextlib
-import dataclasses
-import enum
 import errno
 import logging
-import os
 import queue
 import select
 import socket
@@ -41,12 +38,28 @@ from typing import Any
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from icgt.errors import IcgtError
 from icgt.mavlink.autopilot_rules import BOOT_CLOCK_TYPES, REBOOT_BACKSTEP_MS, is_autopilot_heartbeat
 from icgt.mavlink.frames import split_datagram
+from icgt.mavlink.link_types import (
+    DEFAULT_STREAM_RATES,
+    MAV_COMP_ID_CAMERA,
+    LinkConfig,
+    LinkError,
+    LinkEvent,
+    LinkEventKind,
+    LinkState,
+    LinkStats,
+    RateRequestResult,
+    Received,
+    StreamRate,
+    Subscription,
+    _RateJob,
+)
+from icgt.mavlink.transport import is_datagram, open_transport
 
 __all__ = [
     "DEFAULT_STREAM_RATES",
+    "MAV_COMP_ID_CAMERA",
     "LinkConfig",
     "LinkError",
     "LinkEvent",
@@ -63,230 +76,11 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-MAV_COMP_ID_CAMERA = 100
-_PROTOCOL_MARKER_V1 = 0xFE
 # Linux's SO_TIMESTAMPNS / SCM_TIMESTAMPNS (Python's socket module does not name them): a struct timespec
 # of the datagram's arrival on CLOCK_REALTIME in the ancillary data of recvmsg.
 _SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 _SCM_TIMESTAMPNS = _SO_TIMESTAMPNS
 _TIMESPEC_CMSG_SPACE = socket.CMSG_SPACE(16)
-
-
-class LinkError(IcgtError):
-    """The MAVLink connection cannot be opened (bad URL, missing device, refused connection)."""
-
-
-class LinkState(enum.Enum):
-    """What the link knows about the autopilot."""
-
-    WAITING = "waiting"  # never heard from it
-    UP = "up"  # messages arriving
-    LOST = "lost"  # nothing for link_timeout_s
-
-
-class LinkEventKind(enum.Enum):
-    AUTOPILOT_SEEN = "autopilot_seen"
-    AUTOPILOT_LOST = "autopilot_lost"
-    AUTOPILOT_BACK = "autopilot_back"
-    AUTOPILOT_REBOOTED = "autopilot_rebooted"
-    TRANSPORT_ERROR = "transport_error"
-    TRANSPORT_REOPENED = "transport_reopened"
-    RATE_REQUEST = "rate_request"
-
-
-@dataclasses.dataclass(frozen=True, slots=True)
-class LinkEvent:
-    """A change worth a line in the log. ``outage_ns`` is set on AUTOPILOT_BACK (time since the last
-    message before the loss) and AUTOPILOT_LOST (time since the last message, i.e. about the timeout)."""
-
-    kind: LinkEventKind
-    host_ns: int
-    system: int
-    component: int
-    outage_ns: int | None = None
-    detail: str = ""
-
-
-@dataclasses.dataclass(frozen=True, slots=True)
-class Received:
-    """A message as the reader got it. ``rx_ns`` is time.monotonic_ns() when its last byte arrived."""
-
-    msg: Any
-    rx_ns: int
-
-    @property
-    def type(self) -> str:
-        return str(self.msg.get_type())
-
-    @property
-    def src_system(self) -> int:
-        return int(self.msg.get_srcSystem())
-
-    @property
-    def src_component(self) -> int:
-        return int(self.msg.get_srcComponent())
-
-    @property
-    def msg_id(self) -> int:
-        return int(self.msg.get_msgId())
-
-    @property
-    def mavlink_version(self) -> int:
-        """1 or 2, from the frame's start marker."""
-        buf = self.msg.get_msgbuf()
-        return 1 if buf and buf[0] == _PROTOCOL_MARKER_V1 else 2
-
-
-@dataclasses.dataclass(frozen=True, slots=True)
-class StreamRate:
-    """A telemetry stream to ask the autopilot for. ``rate_hz <= 0`` asks it to stop the stream."""
-
-    message_id: int
-    name: str
-    rate_hz: float
-
-    @property
-    def interval_us(self) -> int:
-        return -1 if self.rate_hz <= 0 else round(1e6 / self.rate_hz)
-
-
-DEFAULT_STREAM_RATES: tuple[StreamRate, ...] = (
-    StreamRate(mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, "GLOBAL_POSITION_INT", 50.0),
-    StreamRate(mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT, "GPS_RAW_INT", 10.0),
-    StreamRate(mavlink2.MAVLINK_MSG_ID_ATTITUDE, "ATTITUDE", 50.0),
-    StreamRate(mavlink2.MAVLINK_MSG_ID_ATTITUDE_QUATERNION, "ATTITUDE_QUATERNION", 50.0),
-    StreamRate(mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED, "LOCAL_POSITION_NED", 30.0),
-    StreamRate(mavlink2.MAVLINK_MSG_ID_SYSTEM_TIME, "SYSTEM_TIME", 2.0),
-)
-
-
-@dataclasses.dataclass(frozen=True, slots=True)
-class LinkConfig:
-    """How to reach the autopilot and who we are on the link.
-
-    ``system_id`` is the vehicle's system id: the camera component shares it (ground stations only list
-    cameras of the vehicle's own system) and it is the autopilot's unless ``autopilot_system`` says
-    otherwise. ``autopilot_component`` None means: learn it from the first HEARTBEAT of that system whose
-    autopilot field is not MAV_AUTOPILOT_INVALID.
-    """
-
-    url: str
-    system_id: int = 1
-    component_id: int = MAV_COMP_ID_CAMERA
-    autopilot_system: int | None = None
-    autopilot_component: int | None = None
-    baud: int = 115200  # serial only, when the URL does not say ("/dev/ttyAMA0,921600" does)
-    link_timeout_s: float = 3.0
-    reopen_delay_s: float = 1.0
-    request_rates: bool = True
-    stream_rates: tuple[StreamRate, ...] = DEFAULT_STREAM_RATES
-    rate_ack_timeout_s: float = 0.5
-    rate_max_attempts: int = 5
-    timesync: bool = True
-    timesync_fast_hz: float = 5.0  # after the autopilot appears (again) ...
-    timesync_fast_count: int = 20  # ... for this many requests, then:
-    timesync_slow_hz: float = 1.0
-    # Systems whose messages are decoded; frames of any other system on a UDP link are passed on as
-    # `UndecodedFrame`s (header only, no CRC check: kept raw, used for nothing). None decodes everything.
-    decode_systems: frozenset[int] | None = None
-    udp_receive_buffer_bytes: int = 4 * 1024 * 1024  # Linux's default (~208 KB) overflows in a parameter burst
-
-    @property
-    def effective_autopilot_system(self) -> int:
-        return self.system_id if self.autopilot_system is None else self.autopilot_system
-
-
-@dataclasses.dataclass(frozen=True, slots=True)
-class RateRequestResult:
-    """Outcome of one SET_MESSAGE_INTERVAL. ``result`` is the MAV_RESULT, or None when never ACKed."""
-
-    message_id: int
-    name: str
-    rate_hz: float
-    result: int | None
-    attempts: int
-    host_ns: int
-
-    @property
-    def accepted(self) -> bool:
-        return self.result is not None and self.result == int(mavlink2.MAV_RESULT_ACCEPTED)
-
-
-@dataclasses.dataclass(frozen=True, slots=True)
-class LinkStats:
-    messages_by_type: dict[str, int]
-    bad_frames: int
-    v1_frames: int
-    v2_frames: int
-    bytes_received: int
-    messages_sent: int
-    send_failures: int
-    callback_errors: int
-    queue_drops: int
-    self_echoes: int
-    same_id_frames: int
-    timesync_sent: int
-    undecoded_frames: int
-    outages: int
-    transport_errors: int
-
-
-class Subscription:
-    """Handle returned by `MavlinkLink.subscribe`; pass it to `unsubscribe`."""
-
-    __slots__ = ("callback", "types")
-
-    def __init__(self, callback: Callable[[Received], object], types: frozenset[str] | None) -> None:
-        self.callback = callback
-        self.types = types
-
-
-@dataclasses.dataclass(slots=True)
-class _RateJob:
-    rate: StreamRate
-    attempts: int = 0
-    deadline_ns: int = 0
-    ack: int | None = None  # MAV_RESULT from the reader thread
-    acked: bool = False
-
-
-def _is_datagram(url: str) -> bool:
-    return url.startswith(("udp:", "udpin:", "udpout:", "udpbcast:", "mcast:"))
-
-
-def _open(config: LinkConfig) -> Any:
-    """Open the pymavlink transport. Serial device paths go straight to mavserial (pymavlink would take a
-    /dev/serial/by-id/...:... path for a UDP address because of its colon)."""
-    url = config.url.strip()
-    if not url:
-        raise LinkError("empty MAVLink URL: use e.g. udpin:0.0.0.0:14550, tcp:host:5760 or /dev/ttyAMA0,921600")
-    try:
-        if url.startswith("/") or url.upper().startswith("COM"):
-            device, _, baud_text = url.partition(",")
-            baud = int(baud_text) if baud_text else config.baud
-            if not os.path.exists(device) and not url.upper().startswith("COM"):
-                raise LinkError(f"serial device {device} does not exist")
-            return mavutil.mavserial(
-                device, baud=baud, source_system=config.system_id, source_component=config.component_id
-            )
-        if not url.startswith(("udp:", "udpin:", "udpout:", "udpbcast:", "tcp:", "tcpin:", "mcast:")):
-            raise LinkError(
-                f"unsupported MAVLink URL {url!r}: use udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, "
-                "tcpin:HOST:PORT or a serial device such as /dev/ttyAMA0,921600"
-            )
-        return mavutil.mavlink_connection(
-            url,
-            baud=config.baud,
-            source_system=config.system_id,
-            source_component=config.component_id,
-            robust_parsing=True,
-            autoreconnect=False,
-            retries=0,
-        )
-    except LinkError:
-        raise
-    except Exception as exc:  # pymavlink raises OSError, ValueError, SerialException, ...
-        raise LinkError(f"cannot open MAVLink link {url!r}: {exc}") from exc
 
 
 class MavlinkLink:
@@ -316,7 +110,7 @@ class MavlinkLink:
         self._parser: Any = self._new_parser()
         self._packer: Any = mavlink2.MAVLink(None, srcSystem=config.system_id, srcComponent=config.component_id)
         self._conn: Any = None
-        self._datagram = _is_datagram(config.url)
+        self._datagram = is_datagram(config.url)
         self._send_lock = threading.Lock()
         self._lock = threading.Lock()  # state shared between the reader, service and caller threads
         self._stop = threading.Event()
@@ -360,7 +154,7 @@ class MavlinkLink:
         """Open the transport (raises LinkError if it cannot) and start the reader and service threads."""
         if self._threads:
             raise LinkError("link already started")
-        self._conn = _open(self.config)
+        self._conn = open_transport(self.config)
         self._tune_socket(self._conn)
         self._stop.clear()
         self._threads = [
@@ -807,7 +601,7 @@ class MavlinkLink:
         if self._stop.wait(self.config.reopen_delay_s):
             return
         try:
-            conn = _open(self.config)
+            conn = open_transport(self.config)
         except LinkError as exc:
             log.debug("reopen of %s failed: %s", self.config.url, exc)
             return

@@ -84,6 +84,7 @@ bench: venv build
 	$(PY) benchmarks/mcap_write.py
 	$(PY) benchmarks/recorder_flight.py --scenario deck_pass --out bench-out/recorder
 	$(PY) benchmarks/geotag_write.py
+	$(PY) benchmarks/recorder_cpu.py --out bench-out/recorder_cpu
 
 clean:
 	rm -rf build $(VENV) demo-out

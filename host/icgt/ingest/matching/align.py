@@ -1,0 +1,303 @@
+"""The alignment for one camera clock model: monotone pairing of images and exposures, banded DP.
+
+Per image the exposures its padded EXIF window admits (`windows`); the card splits into independent
+segments wherever no window overlaps the next (`solve`); each segment is aligned by dynamic
+programming over the order of both sequences (`solve_segment`), forward and backward, so that for
+every image the cost of the best alignment that does not pair it the way the optimum does is known.
+
+Banded: row r of the DP (r images placed) is only kept on the columns [A_r, B_r] where it can differ
+from a plain sum of frame skips: A_r is the least frame any image from r - 1 on may pair with (a suffix
+minimum), B_r one past the greatest frame any image up to r may pair with (a running maximum), both
+non-decreasing. Left of A_r nothing later can pair, right of B_r nothing earlier did, so the values
+there follow from the band's edge plus the frames' skip costs (prefix sums), and every minimum the
+ambiguity test takes lies inside the band. The result equals the full DP's; time and memory are the
+sum of the band widths, a few exposures per image, instead of images x exposures per segment.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+
+import numpy as np
+
+from icgt.ingest.matching.results import (
+    AMBIGUITY_MARGIN,
+    IMAGE_EXTRA,
+    IMAGE_NO_EXPOSURE,
+    IMAGE_NO_TIME_UNPLACED,
+)
+from icgt.ingest.matching.state import Card, Frames, Model, Outcome
+
+MAX_SEGMENT_CELLS = 4_000_000
+"""Band cells of one segment beyond which runs of images without EXIF time are left out of it."""
+_CACHE_MAX_IMAGES = 64  # segments up to this many images are remembered (offset scans repeat most of them)
+
+
+def windows(card: Card, fr: Frames, model: Model, widen: float) -> tuple[list[list[int]], list[tuple[int, int] | None]]:
+    """Per image: the frames its padded EXIF window admits (timed images), and the frame range it may use."""
+    n, m = len(card), len(fr.recs)
+    p = np.asarray(model.predict(fr.x), dtype=np.float64)
+    tol = fr.tol + widen
+    tmax = float(tol.max()) if len(tol) else 0.0
+    cands: list[list[int]] = [[] for _ in range(n)]
+    ranges: list[tuple[int, int] | None] = [None] * n
+    ti = card.timed
+    if len(ti) and m:
+        lo_t, hi_t = card.c[ti], card.c[ti] + card.r[ti]
+        a = np.searchsorted(p, lo_t - tmax, side="left")
+        b = np.searchsorted(p, hi_t + tmax, side="right")
+        cnt = np.maximum(b - a, 0)
+        rep = np.repeat(np.arange(len(ti)), cnt)
+        starts = np.cumsum(cnt) - cnt
+        j = np.arange(int(cnt.sum()), dtype=np.int64) - np.repeat(starts, cnt) + np.repeat(a, cnt)
+        pj = p[j]
+        dist = np.maximum(np.maximum(lo_t[rep] - pj, pj - hi_t[rep]), 0.0)
+        keep = fr.eligible[j] & (dist <= tol[j])  # inside the padded window: timing noise carries no evidence
+        jj, rr = j[keep], rep[keep]
+        counts = np.bincount(rr, minlength=len(ti))
+        flat = jj.tolist()
+        pos = 0
+        for i, c in zip(ti.tolist(), counts.tolist(), strict=True):
+            if c:
+                cand = flat[pos : pos + c]
+                cands[i] = cand
+                ranges[i] = (cand[0], cand[-1])
+                pos += c
+    # Images without a time may take any exposure between their timed neighbours' windows.
+    untimed = [i for i in range(n) if not card.has_time(i)] if len(ti) < n else []
+    if untimed:
+        placed = [i for i in ti.tolist() if ranges[i] is not None]
+        for i in untimed:
+            k = bisect.bisect_left(placed, i)
+            before = ranges[placed[k - 1]] if k > 0 else None
+            after = ranges[placed[k]] if k < len(placed) else None
+            lo = before[0] if before is not None else 0
+            hi = after[1] if after is not None else m - 1
+            has = m > 0 and lo <= hi and int(fr.eligible_prefix[hi + 1] - fr.eligible_prefix[lo]) > 0
+            ranges[i] = (lo, hi) if has else None
+    return cands, ranges
+
+
+def solve(card: Card, fr: Frames, model: Model, widen: float) -> Outcome:
+    """The alignment under `model` with every window widened by `widen` [s]."""
+    cands, ranges = windows(card, fr, model, widen)
+    n = len(card)
+    out = Outcome(0.0, {}, {}, {}, set())
+    # Ranges made monotone (a camera numbers in time order); segments where ranges overlap.
+    segs: list[tuple[list[int], int, int]] = []
+    run_lo = 0
+    for i in range(n):
+        r = ranges[i]
+        if r is None:
+            continue
+        lo, hi = max(r[0], run_lo), r[1]
+        if lo > hi:
+            ranges[i] = None
+            out.extra[i] = IMAGE_EXTRA
+            continue
+        ranges[i] = (lo, hi)
+        run_lo = lo
+        if segs and lo <= segs[-1][2]:
+            last = segs[-1]
+            last[0].append(i)
+            if hi > last[2]:
+                segs[-1] = (last[0], last[1], hi)
+        else:
+            segs.append(([i], lo, hi))
+    in_seg_skip = 0.0
+    for imgs, lo, hi in segs:
+        in_seg_skip += float(fr.skip_prefix[hi + 1] - fr.skip_prefix[lo])
+        part: Outcome | None = None
+        key: tuple[object, ...] | None = None
+        if len(imgs) <= _CACHE_MAX_IMAGES:
+            # The same images seeing the same exposures give the same answer.
+            key = (lo, hi, *((i, tuple(cands[i])) if card.has_time(i) else (i, ranges[i]) for i in imgs))
+            part = fr.cache.get(key)
+        if part is None:
+            part = Outcome(0.0, {}, {}, {}, set())
+            solve_segment(card, fr, cands, ranges, imgs, lo, hi, part)
+            if key is not None:
+                fr.cache[key] = part
+        out.cost += part.cost
+        out.pairs.update(part.pairs)
+        out.ambiguous.update(part.ambiguous)
+        out.extra.update(part.extra)
+        out.frame_ambiguous.update(part.frame_ambiguous)
+    for i in range(n):
+        if ranges[i] is None and i not in out.extra:
+            out.extra[i] = IMAGE_NO_EXPOSURE if card.has_time(i) else IMAGE_NO_TIME_UNPLACED
+            out.cost += fr.image_skip
+        elif ranges[i] is None and i in out.extra:
+            out.cost += fr.image_skip
+    out.cost += float(fr.skip_prefix[-1]) - in_seg_skip
+    return out
+
+
+def solve_segment(
+    card: Card,
+    fr: Frames,
+    cands: list[list[int]],
+    ranges: list[tuple[int, int] | None],
+    imgs: list[int],
+    lo: int,
+    hi: int,
+    out: Outcome,
+) -> None:
+    """Align the images `imgs` with frames lo..hi (local columns 0..q) and record what is decided."""
+    q = hi - lo + 1
+    pair = _pair_sets(card, fr, cands, ranges, imgs, lo, hi)
+    band_a, band_b = _bands(pair, q)
+    if sum(b - a + 1 for a, b in zip(band_a, band_b, strict=True)) > MAX_SEGMENT_CELLS:
+        # Only long runs of images without EXIF time make bands this wide: leave them out.
+        for i in imgs:
+            if not card.has_time(i):
+                out.ambiguous[i] = ([], "no EXIF time, in a run of such images too long to place by order")
+        imgs = [i for i in imgs if card.has_time(i)]
+        pair = _pair_sets(card, fr, cands, ranges, imgs, lo, hi)
+        band_a, band_b = _bands(pair, q)
+    p = len(imgs)
+    si = fr.image_skip
+    sf = fr.skip[lo : hi + 1]
+    pre = fr.skip_prefix[lo : hi + 2] - fr.skip_prefix[lo]
+    pf: list[float] = pre.tolist()  # pf[b] = cost of skipping local frames 0..b-1
+    # forward: f[r][b - A_r] = best cost of images[:r] with frames[:b]
+    a0, b0 = band_a[0], band_b[0]
+    f: list[list[float]] = [pf[a0 : b0 + 1]]
+    for r in range(p):
+        ar, br = band_a[r], band_b[r]
+        an, bn = band_a[r + 1], band_b[r + 1]
+        prev = f[r]
+        edge = prev[br - ar]
+        row = [prev[b - ar] + si if b <= br else edge + (pf[b] - pf[br]) + si for b in range(an, bn + 1)]
+        for bb in pair[r]:  # pair image r with frame bb: from column bb to bb + 1
+            w = prev[bb - ar]
+            k = bb + 1 - an
+            if w < row[k]:
+                row[k] = w
+        last = row[0]
+        for k in range(1, len(row)):
+            w = last + sf[an + k - 1]
+            if w < row[k]:
+                row[k] = w
+            last = row[k]
+        f.append(row)
+    # backward: g[r][b - A_r] = best cost of images[r:] with frames[b:]
+    g: list[list[float]] = [[] for _ in range(p + 1)]
+    total = pf[q]
+    g[p] = [total - pf[b] for b in range(band_a[p], band_b[p] + 1)]
+    for r in range(p - 1, -1, -1):
+        ar, br = band_a[r], band_b[r]
+        an = band_a[r + 1]
+        nxt = g[r + 1]
+        first = nxt[0]
+        row = [nxt[b - an] + si if b >= an else first + (pf[an] - pf[b]) + si for b in range(ar, br + 1)]
+        for bb in pair[r]:
+            w = nxt[bb + 1 - an]
+            k = bb - ar
+            if w < row[k]:
+                row[k] = w
+        last = row[-1]
+        for k in range(len(row) - 2, -1, -1):
+            w = last + sf[ar + k]
+            if w < row[k]:
+                row[k] = w
+            last = row[k]
+        g[r] = row
+
+    def f_at(r: int, b: int) -> float:
+        if r == 0:
+            return pf[b]
+        ar, br = band_a[r], band_b[r]
+        if b > br:
+            return f[r][br - ar] + (pf[b] - pf[br])
+        return f[r][b - ar]
+
+    opt = f_at(p, q)
+    out.cost += opt
+    # the optimal path (ties: pair first, then a frame skip inside the band)
+    chosen: dict[int, int] = {}
+    a, b = p, q
+    while a > 0 or b > 0:
+        here = f_at(a, b)
+        if a > 0 and b > 0 and (b - 1) in pair[a - 1] and abs(f_at(a - 1, b - 1) - here) < 1e-9:
+            chosen[a - 1] = b - 1
+            a, b = a - 1, b - 1
+        elif b > 0 and (a == 0 or b - 1 >= band_a[a]) and abs(f_at(a, b - 1) + sf[b - 1] - here) < 1e-9:
+            b -= 1
+        else:
+            a -= 1
+    limit = opt + AMBIGUITY_MARGIN
+    inf = math.inf
+    for r in range(p):
+        i = imgs[r]
+        ar, br = band_a[r], band_b[r]
+        an = band_a[r + 1]
+        fr_row, g_row = f[r], g[r + 1]
+        with_pair = {bb: fr_row[bb - ar] + g_row[bb + 1 - an] for bb in pair[r]}
+        # the best alignment leaving image r out: min over columns of f[r] + g[r + 1]; outside
+        # [A_{r+1}, B_r] both sides only add frame skips, so the minimum lies inside
+        with_skip = min(fr_row[b - ar] + g_row[b - an] for b in range(an, br + 1)) + si
+        mine = chosen.get(r)
+        alts = [v for bb, v in with_pair.items() if bb != mine]
+        if mine is not None:
+            alts.append(with_skip)
+        alt = min(alts, default=inf)
+        near = sorted(bb + lo for bb, v in with_pair.items() if v <= limit)
+        if alt > limit:
+            if mine is not None:
+                out.pairs[i] = mine + lo
+            else:
+                out.extra[i] = IMAGE_EXTRA
+            continue
+        if mine is None and not near:
+            out.extra[i] = IMAGE_EXTRA
+            continue
+        if not card.has_time(i):
+            why = "no EXIF time and the order does not single out one exposure"
+        elif with_skip <= limit:
+            why = "its EXIF time fits these exposures and the counts do not say which image is the extra one"
+        else:
+            why = "its EXIF time fits several exposures and the order does not decide"
+        out.ambiguous[i] = (near, why)
+        out.frame_ambiguous.update(near)
+
+
+def _pair_sets(
+    card: Card,
+    fr: Frames,
+    cands: list[list[int]],
+    ranges: list[tuple[int, int] | None],
+    imgs: list[int],
+    lo: int,
+    hi: int,
+) -> list[list[int]]:
+    """Per image of the segment, the local columns it may pair with (every pair inside its window costs 0)."""
+    pair: list[list[int]] = []
+    for i in imgs:
+        if card.has_time(i):
+            pair.append([j - lo for j in cands[i] if lo <= j <= hi])
+        else:
+            r = ranges[i]
+            r0, r1 = (max(lo, r[0]), min(hi, r[1])) if r is not None else (lo, hi)
+            pair.append([j - lo for j in range(r0, r1 + 1) if fr.eligible[j]])
+    return pair
+
+
+def _bands(pair: list[list[int]], q: int) -> tuple[list[int], list[int]]:
+    """[A_r, B_r] for rows r = 0..p: A_r the least column images r-1.. may pair with (suffix minimum,
+    row 0 and 1 alike), B_r one past the greatest images ..r may pair with (running maximum), B_p = q."""
+    p = len(pair)
+    least = [min(s) if s else q for s in pair]
+    suffix = [q] * (p + 1)
+    for r in range(p - 1, -1, -1):
+        suffix[r] = min(least[r], suffix[r + 1])
+    band_a = [suffix[0]] + [suffix[r - 1] for r in range(1, p + 1)]
+    band_b = [0] * (p + 1)
+    reach = 0
+    for r in range(p):
+        if pair[r]:
+            reach = max(reach, max(pair[r]) + 1)
+        band_b[r] = min(q, max(reach, band_a[r + 1], band_a[r]))
+    band_b[p] = q
+    return band_a, band_b

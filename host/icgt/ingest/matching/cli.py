@@ -1,0 +1,47 @@
+"""`icgt match --images DIR LOG`: the command line (summary, every undecided image, the JSON report)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from icgt.ingest.matching.core import match_images
+from icgt.ingest.matching.results import MatchError
+
+
+def cmd_match(args: argparse.Namespace) -> int:
+    """`icgt match --images DIR LOG [--json OUT] [--camera-id N] [--tolerance S]`.
+
+    Prints the summary, every ambiguous and unmatched image; exit status 0 when every image is
+    decided (paired or explained), 2 when some are ambiguous and need a look."""
+    from icgt.ingest.reader import read
+
+    log_path: Path = args.log
+    images: Path = args.images
+    rec = read(log_path)
+    frames = list(rec.frames())
+    if not frames:
+        raise MatchError(f"{log_path}: the recording has no frames")
+    tolerance = getattr(args, "tolerance", None)
+    result = match_images(
+        frames,
+        images,
+        camera_id=getattr(args, "camera_id", None),
+        time_tolerance_s=0.02 if tolerance is None else float(tolerance),
+    )
+    print(result.summary())
+    for a in result.ambiguous:
+        seqs = ", ".join(str(f.frame_seq) for f in a.candidates) or "none left"
+        print(f"  ambiguous {a.image.name}: frames {seqs}: {a.why}")
+    for u in result.unmatched_images:
+        print(f"  image {u.image.name}: {u.reason}: {u.detail}")
+    out: Path | None = getattr(args, "json", None)
+    if out is not None:
+        try:
+            out.write_text(json.dumps(result.to_json(), indent=2) + "\n")
+        except OSError as exc:
+            raise MatchError(f"cannot write {out}: {exc.strerror or exc}") from None
+        print(f"written {out}", file=sys.stderr)
+    return 2 if result.ambiguous else 0

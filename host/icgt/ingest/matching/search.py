@@ -1,0 +1,116 @@
+"""Offsets around a fit: settle a candidate, refine it with the drift, scan the neighbourhood for rivals."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from icgt.ingest.matching.align import solve
+from icgt.ingest.matching.clock import fit
+from icgt.ingest.matching.results import AMBIGUITY_MARGIN
+from icgt.ingest.matching.state import Card, Frames, Model, Outcome
+
+MAX_SCAN_S = 3.0
+"""Offsets are scanned at most this far from the fit [s]."""
+
+
+def refine(card: Card, fr: Frames, start: Model, widen: float, max_drift_ppm: float) -> tuple[Model, Outcome]:
+    """Align with widened windows (the drift is unknown), fit, and close the windows to the tolerance."""
+    model = start
+    for w in (widen, widen, widen / 2.0, 0.0) if widen > 0 else (0.0, 0.0):
+        outcome = solve(card, fr, model, w)
+        model = fit(card.times, fr, outcome.pairs, model, max_drift_ppm)
+    return model, solve(card, fr, model, 0.0)
+
+
+def grid(fr: Frames, card: Card, tolerance_s: float, *, coarse: bool) -> tuple[float, float]:
+    """(step, reach) of an offset scan [s]: fine for the ambiguity scan, coarser to settle a candidate."""
+    xe = fr.x[fr.eligible]
+    dt = float(np.median(np.diff(xe))) if len(xe) >= 2 else 0.0
+    r_max = float(card.r[card.timed].max()) if len(card.timed) else 0.0
+    if coarse:
+        return max(0.004, tolerance_s / 2.0, r_max / 20.0), min(MAX_SCAN_S, r_max / 2.0 + dt)
+    return max(0.004, tolerance_s / 2.0), min(MAX_SCAN_S, r_max / 2.0 + 2.0 * dt + 2.0 * tolerance_s)
+
+
+def settle(card: Card, fr: Frames, start: Model, tolerance_s: float) -> Model:
+    """The middle of the run of scanned offsets around `start` that cost least."""
+    step, reach = grid(fr, card, tolerance_s, coarse=True)
+    base = solve(card, fr, start, 0.0)
+    found = scan(card, fr, start, base.cost, step, reach, centre=True)
+    if not found:
+        return start
+    least = min(c for c, _m, _o, _k in found)
+    ks = {k for c, _m, _o, k in found if c <= least + 1e-9}
+    best_k = min(ks, key=abs)
+    lo = hi = best_k
+    while lo - 1 in ks:
+        lo -= 1
+    while hi + 1 in ks:
+        hi += 1
+    return Model(start.offset + (lo + hi) / 2.0 * step, start.drift)
+
+
+def scan(
+    card: Card,
+    fr: Frames,
+    model: Model,
+    best: float,
+    step: float,
+    reach: float,
+    *,
+    centre: bool = False,
+) -> list[tuple[float, Model, Outcome, int]]:
+    """Solutions at offsets around `model` (a grid) that may cost at most `best` + AMBIGUITY_MARGIN.
+
+    Each offset is solved with its windows widened by half the grid step, so an alignment that fits
+    anywhere between two grid offsets is seen (the scan errs towards ambiguity).
+    """
+    xe = fr.x[fr.eligible]
+    if len(xe) < 2 or len(card.timed) == 0:
+        return []
+    c, r = card.c[card.timed], card.r[card.timed]
+    order = np.argsort(c, kind="stable")
+    c_sorted, r_sorted = c[order], r[order]
+    skip_e = np.array(fr.skip, dtype=np.float64)[fr.eligible]
+    min_skip = float(skip_e[skip_e > 0].min()) if bool((skip_e > 0).any()) else 0.0
+    t_pad = float(fr.tol.max()) + step / 2.0
+    untimed = float(len(card) - len(card.timed))
+    uniq, first, counts = np.unique(c, return_index=True, return_counts=True)
+    seen: dict[int, tuple[float, Model, Outcome, int] | None] = {}
+    out: list[tuple[float, Model, Outcome, int]] = []
+    for k in range(-math.floor(reach / step), math.floor(reach / step) + 1):
+        if k == 0 and not centre:
+            continue
+        m = Model(model.offset + k * step, model.drift)
+        pe = np.asarray(m.predict(xe), dtype=np.float64)
+        lo = np.searchsorted(pe, c - t_pad, side="left")
+        hi = np.searchsorted(pe, c + r + t_pad, side="right")
+        signature = hash(lo.tobytes() + hi.tobytes())
+        if signature in seen:  # every image sees the same exposures as at an offset already tried
+            if seen[signature] is not None:
+                c0, _m0, o0, _k0 = seen[signature]  # type: ignore[misc]
+                out.append((c0, m, o0, k))
+            continue
+        seen[signature] = None
+        # A lower bound on the cost: images with fewer exposures in reach than images of the same
+        # EXIF time, exposures in reach of no image, exposures deep inside one window outnumbering its images.
+        bound = 0.0
+        avail = hi[first] - lo[first]
+        bound += float(np.clip(counts - avail, 0, None).sum()) * fr.image_skip
+        k_idx = np.searchsorted(c_sorted, pe + t_pad, side="right") - 1
+        covered = (k_idx >= 0) & (pe <= c_sorted[np.clip(k_idx, 0, None)] + r_sorted[np.clip(k_idx, 0, None)] + t_pad)
+        uncovered = float(np.count_nonzero(~covered & (skip_e > 0)))
+        core_lo = np.searchsorted(pe, uniq + t_pad, side="left")
+        core_hi = np.searchsorted(pe, uniq + r[first] - t_pad, side="left")
+        excess = float(np.clip((core_hi - core_lo) - counts, 0, None).sum())
+        # (an image without EXIF time may take any of those exposures)
+        bound += max(0.0, uncovered + excess - untimed) * min_skip
+        if bound > best + AMBIGUITY_MARGIN:
+            continue
+        alt = solve(card, fr, m, step / 2.0)
+        if alt.cost <= best + AMBIGUITY_MARGIN:
+            out.append((alt.cost, m, alt, k))
+            seen[signature] = out[-1]
+    return out

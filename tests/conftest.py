@@ -24,3 +24,9 @@ def cpp_vector_runner(build_dir: Path) -> Path:
     if not runner.exists():
         pytest.fail(f"{runner} is missing: build the C++ side first (make build, or make test)")
     return runner
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _match_cache(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """Matches kept by `icgt match` for `icgt export` go to a per-session folder, never the user's cache."""
+    os.environ["ICGT_MATCH_CACHE"] = str(tmp_path_factory.mktemp("match_cache"))

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import bisect
 import math
+import operator
 
 import numpy as np
 
@@ -79,41 +80,97 @@ def windows(card: Card, fr: Frames, model: Model, widen: float) -> tuple[list[li
     return cands, ranges
 
 
-def solve(card: Card, fr: Frames, model: Model, widen: float) -> Outcome:
-    """The alignment under `model` with every window widened by `widen` [s]."""
+Segments = list[tuple[list[int], int, int]]
+
+
+def segments(
+    card: Card, fr: Frames, model: Model, widen: float
+) -> tuple[list[list[int]], list[tuple[int, int] | None], Segments, list[int]]:
+    """Windows, ranges made monotone, the independent segments (images, first, last frame), extra images.
+
+    Ranges made monotone (a camera numbers in time order): an image may not start before the latest
+    start of the images before it (a running maximum; an image whose range then closes is extra).
+    Segments where ranges overlap: a new one starts past the greatest end so far."""
     cands, ranges = windows(card, fr, model, widen)
     n = len(card)
-    out = Outcome(0.0, {}, {}, {}, set())
-    # Ranges made monotone (a camera numbers in time order); segments where ranges overlap.
-    segs: list[tuple[list[int], int, int]] = []
-    run_lo = 0
-    for i in range(n):
-        r = ranges[i]
-        if r is None:
-            continue
-        lo, hi = max(r[0], run_lo), r[1]
-        if lo > hi:
+    with_range = [i for i in range(n) if ranges[i] is not None]
+    segs: Segments = []
+    extra: list[int] = []
+    if with_range:
+        r0 = np.array([ranges[i][0] for i in with_range], dtype=np.int64)  # type: ignore[index]
+        r1 = np.array([ranges[i][1] for i in with_range], dtype=np.int64)  # type: ignore[index]
+        lo_adj = np.maximum.accumulate(r0)
+        kept = lo_adj <= r1
+        extra = np.asarray(with_range)[~kept].tolist()
+        for i in extra:
             ranges[i] = None
-            out.extra[i] = IMAGE_EXTRA
+        ki = np.asarray(with_range)[kept]
+        klo, khi = lo_adj[kept], r1[kept]
+        reach = np.maximum.accumulate(khi)
+        starts = np.flatnonzero(np.concatenate([[True], klo[1:] > reach[:-1]])) if len(ki) else np.zeros(0, int)
+        ends = np.concatenate([starts[1:], [len(ki)]]).astype(np.int64)
+        ki_l, klo_l, khi_l, reach_l = ki.tolist(), klo.tolist(), khi.tolist(), reach.tolist()
+        for k, i in enumerate(ki_l):
+            ranges[i] = (klo_l[k], khi_l[k])
+        for s0, s1 in zip(starts.tolist(), ends.tolist(), strict=True):
+            segs.append((ki_l[s0:s1], klo_l[s0], reach_l[s1 - 1]))
+    return cands, ranges, segs, extra
+
+
+def _segment_key(
+    card: Card, cands: list[list[int]], ranges: list[tuple[int, int] | None], imgs: list[int], lo: int, hi: int
+) -> tuple[object, ...] | None:
+    """The same images seeing the same exposures give the same answer (offset scans repeat most segments)."""
+    if len(imgs) > _CACHE_MAX_IMAGES:
+        return None
+    return (lo, hi, *((i, tuple(cands[i])) if card.has_time(i) else (i, ranges[i]) for i in imgs))
+
+
+def solve_cost(card: Card, fr: Frames, model: Model, widen: float, limit: float) -> float:
+    """The cost of `solve` (forward passes only), or infinity as soon as it is known to exceed `limit`."""
+    cands, ranges, segs, _extra = segments(card, fr, model, widen)
+    cost = sum(fr.image_skip for r in ranges if r is None) + float(fr.skip_prefix[-1])
+    for _imgs, lo, hi in segs:
+        cost -= float(fr.skip_prefix[hi + 1] - fr.skip_prefix[lo])
+    for imgs, lo, hi in segs:
+        if cost > limit:
+            return math.inf
+        if len(imgs) == 1:
+            one = _pair_sets(card, fr, cands, ranges, imgs, lo, hi)[0]
+            total = float(fr.skip_prefix[hi + 1] - fr.skip_prefix[lo])
+            cost += min([total + fr.image_skip] + [total - fr.skip[j + lo] for j in one])
             continue
-        ranges[i] = (lo, hi)
-        run_lo = lo
-        if segs and lo <= segs[-1][2]:
-            last = segs[-1]
-            last[0].append(i)
-            if hi > last[2]:
-                segs[-1] = (last[0], last[1], hi)
-        else:
-            segs.append(([i], lo, hi))
+        key = _segment_key(card, cands, ranges, imgs, lo, hi)
+        known = fr.cache.get(key) if key is not None else None
+        if known is not None:
+            cost += known.cost
+            continue
+        seg_cost = fr.cost_cache.get(key) if key is not None else None
+        if seg_cost is None:
+            _imgs, pair, band_a, band_b, pf, sf = _prepare(card, fr, cands, ranges, imgs, lo, hi, None)
+            f = _forward(pair, band_a, band_b, pf, sf, fr.image_skip)
+            seg_cost = _f_at(f, band_a, band_b, pf, len(pair), hi - lo + 1)
+            if key is not None:
+                fr.cost_cache[key] = seg_cost
+        cost += seg_cost
+    return cost if cost <= limit else math.inf
+
+
+def solve(card: Card, fr: Frames, model: Model, widen: float) -> Outcome:
+    """The alignment under `model` with every window widened by `widen` [s]."""
+    cands, ranges, segs, extra = segments(card, fr, model, widen)
+    n = len(card)
+    out = Outcome(0.0, {}, {}, {}, set())
+    for i in extra:
+        out.extra[i] = IMAGE_EXTRA
     in_seg_skip = 0.0
     for imgs, lo, hi in segs:
         in_seg_skip += float(fr.skip_prefix[hi + 1] - fr.skip_prefix[lo])
-        part: Outcome | None = None
-        key: tuple[object, ...] | None = None
-        if len(imgs) <= _CACHE_MAX_IMAGES:
-            # The same images seeing the same exposures give the same answer.
-            key = (lo, hi, *((i, tuple(cands[i])) if card.has_time(i) else (i, ranges[i]) for i in imgs))
-            part = fr.cache.get(key)
+        if len(imgs) == 1:
+            out.cost += _solve_single(card, fr, cands, ranges, imgs[0], lo, hi, out)
+            continue
+        key = _segment_key(card, cands, ranges, imgs, lo, hi)
+        part = fr.cache.get(key) if key is not None else None
         if part is None:
             part = Outcome(0.0, {}, {}, {}, set())
             solve_segment(card, fr, cands, ranges, imgs, lo, hi, part)
@@ -134,7 +191,7 @@ def solve(card: Card, fr: Frames, model: Model, widen: float) -> Outcome:
     return out
 
 
-def solve_segment(
+def _prepare(
     card: Card,
     fr: Frames,
     cands: list[list[int]],
@@ -142,34 +199,39 @@ def solve_segment(
     imgs: list[int],
     lo: int,
     hi: int,
-    out: Outcome,
-) -> None:
-    """Align the images `imgs` with frames lo..hi (local columns 0..q) and record what is decided."""
+    out: Outcome | None,
+) -> tuple[list[int], list[list[int]], list[int], list[int], list[float], list[float]]:
+    """(images, pair columns, bands A and B, skip prefix sums, skip costs) of a segment in local columns."""
     q = hi - lo + 1
     pair = _pair_sets(card, fr, cands, ranges, imgs, lo, hi)
     band_a, band_b = _bands(pair, q)
     if sum(b - a + 1 for a, b in zip(band_a, band_b, strict=True)) > MAX_SEGMENT_CELLS:
         # Only long runs of images without EXIF time make bands this wide: leave them out.
-        for i in imgs:
-            if not card.has_time(i):
-                out.ambiguous[i] = ([], "no EXIF time, in a run of such images too long to place by order")
+        if out is not None:
+            for i in imgs:
+                if not card.has_time(i):
+                    out.ambiguous[i] = ([], "no EXIF time, in a run of such images too long to place by order")
         imgs = [i for i in imgs if card.has_time(i)]
         pair = _pair_sets(card, fr, cands, ranges, imgs, lo, hi)
         band_a, band_b = _bands(pair, q)
-    p = len(imgs)
-    si = fr.image_skip
-    sf = fr.skip[lo : hi + 1]
-    pre = fr.skip_prefix[lo : hi + 2] - fr.skip_prefix[lo]
-    pf: list[float] = pre.tolist()  # pf[b] = cost of skipping local frames 0..b-1
-    # forward: f[r][b - A_r] = best cost of images[:r] with frames[:b]
-    a0, b0 = band_a[0], band_b[0]
-    f: list[list[float]] = [pf[a0 : b0 + 1]]
+    pf: list[float] = (fr.skip_prefix[lo : hi + 2] - fr.skip_prefix[lo]).tolist()  # pf[b]: skip local 0..b-1
+    return imgs, pair, band_a, band_b, pf, fr.skip[lo : hi + 1]
+
+
+def _forward(
+    pair: list[list[int]], band_a: list[int], band_b: list[int], pf: list[float], sf: list[float], si: float
+) -> list[list[float]]:
+    """f[r][b - A_r] = best cost of images[:r] with frames[:b], on the bands."""
+    p = len(pair)
+    f: list[list[float]] = [pf[band_a[0] : band_b[0] + 1]]
     for r in range(p):
         ar, br = band_a[r], band_b[r]
         an, bn = band_a[r + 1], band_b[r + 1]
         prev = f[r]
-        edge = prev[br - ar]
-        row = [prev[b - ar] + si if b <= br else edge + (pf[b] - pf[br]) + si for b in range(an, bn + 1)]
+        row = [v + si for v in prev[an - ar :]]  # columns an..br
+        if bn > br:
+            base = prev[-1] + si - pf[br]
+            row.extend([base + pf[b] for b in range(br + 1, bn + 1)])
         for bb in pair[r]:  # pair image r with frame bb: from column bb to bb + 1
             w = prev[bb - ar]
             k = bb + 1 - an
@@ -182,6 +244,34 @@ def solve_segment(
                 row[k] = w
             last = row[k]
         f.append(row)
+    return f
+
+
+def _f_at(f: list[list[float]], band_a: list[int], band_b: list[int], pf: list[float], r: int, b: int) -> float:
+    if r == 0:
+        return pf[b]
+    ar, br = band_a[r], band_b[r]
+    if b > br:
+        return f[r][br - ar] + (pf[b] - pf[br])
+    return f[r][b - ar]
+
+
+def solve_segment(
+    card: Card,
+    fr: Frames,
+    cands: list[list[int]],
+    ranges: list[tuple[int, int] | None],
+    imgs: list[int],
+    lo: int,
+    hi: int,
+    out: Outcome,
+) -> None:
+    """Align the images `imgs` with frames lo..hi (local columns 0..q) and record what is decided."""
+    q = hi - lo + 1
+    imgs, pair, band_a, band_b, pf, sf = _prepare(card, fr, cands, ranges, imgs, lo, hi, out)
+    p = len(imgs)
+    si = fr.image_skip
+    f = _forward(pair, band_a, band_b, pf, sf, si)
     # backward: g[r][b - A_r] = best cost of images[r:] with frames[b:]
     g: list[list[float]] = [[] for _ in range(p + 1)]
     total = pf[q]
@@ -190,8 +280,12 @@ def solve_segment(
         ar, br = band_a[r], band_b[r]
         an = band_a[r + 1]
         nxt = g[r + 1]
-        first = nxt[0]
-        row = [nxt[b - an] + si if b >= an else first + (pf[an] - pf[b]) + si for b in range(ar, br + 1)]
+        if an > ar:
+            base = nxt[0] + pf[an] + si
+            row = [base - pf[b] for b in range(ar, an)]
+            row.extend([v + si for v in nxt[: br - an + 1]])
+        else:
+            row = [v + si for v in nxt[: br - an + 1]]
         for bb in pair[r]:
             w = nxt[bb + 1 - an]
             k = bb - ar
@@ -205,62 +299,76 @@ def solve_segment(
             last = row[k]
         g[r] = row
 
-    def f_at(r: int, b: int) -> float:
-        if r == 0:
-            return pf[b]
-        ar, br = band_a[r], band_b[r]
-        if b > br:
-            return f[r][br - ar] + (pf[b] - pf[br])
-        return f[r][b - ar]
-
-    opt = f_at(p, q)
+    opt = _f_at(f, band_a, band_b, pf, p, q)
     out.cost += opt
-    # the optimal path (ties: pair first, then a frame skip inside the band)
-    chosen: dict[int, int] = {}
-    a, b = p, q
-    while a > 0 or b > 0:
-        here = f_at(a, b)
-        if a > 0 and b > 0 and (b - 1) in pair[a - 1] and abs(f_at(a - 1, b - 1) - here) < 1e-9:
-            chosen[a - 1] = b - 1
-            a, b = a - 1, b - 1
-        elif b > 0 and (a == 0 or b - 1 >= band_a[a]) and abs(f_at(a, b - 1) + sf[b - 1] - here) < 1e-9:
-            b -= 1
-        else:
-            a -= 1
     limit = opt + AMBIGUITY_MARGIN
-    inf = math.inf
     for r in range(p):
-        i = imgs[r]
         ar, br = band_a[r], band_b[r]
         an = band_a[r + 1]
         fr_row, g_row = f[r], g[r + 1]
-        with_pair = {bb: fr_row[bb - ar] + g_row[bb + 1 - an] for bb in pair[r]}
+        with_pair = {bb + lo: fr_row[bb - ar] + g_row[bb + 1 - an] for bb in pair[r]}
         # the best alignment leaving image r out: min over columns of f[r] + g[r + 1]; outside
         # [A_{r+1}, B_r] both sides only add frame skips, so the minimum lies inside
-        with_skip = min(fr_row[b - ar] + g_row[b - an] for b in range(an, br + 1)) + si
-        mine = chosen.get(r)
-        alts = [v for bb, v in with_pair.items() if bb != mine]
+        with_skip = min(map(operator.add, fr_row[an - ar : br - ar + 1], g_row[: br - an + 1])) + si
+        # The optimum's own pairing of image r. Where several alignments are optimal any of them will
+        # do: the image is then ambiguous whichever is taken (the others are within the margin).
+        mine = next((j for j, v in with_pair.items() if abs(v - opt) < 1e-9), None)
+        _decide(card, imgs[r], with_pair, with_skip, mine, limit, out)
+
+
+def _solve_single(
+    card: Card,
+    fr: Frames,
+    cands: list[list[int]],
+    ranges: list[tuple[int, int] | None],
+    i: int,
+    lo: int,
+    hi: int,
+    out: Outcome,
+) -> float:
+    """A segment of one image: the DP in closed form (pair with one frame and skip the others, or skip
+    all); the optimal path's tie rule (pair first, walking back from the end) takes the last best frame."""
+    pair = [j + lo for j in _pair_sets(card, fr, cands, ranges, [i], lo, hi)[0]]
+    total = float(fr.skip_prefix[hi + 1] - fr.skip_prefix[lo])
+    skip = fr.skip
+    with_pair = {j: total - skip[j] for j in pair}
+    with_skip = total + fr.image_skip
+    opt = min(with_skip, *with_pair.values()) if with_pair else with_skip
+    mine = None
+    for j in reversed(pair):
+        if abs(with_pair[j] - opt) < 1e-9:
+            mine = j
+            break
+    _decide(card, i, with_pair, with_skip, mine, opt + AMBIGUITY_MARGIN, out)
+    return opt
+
+
+def _decide(
+    card: Card, i: int, with_pair: dict[int, float], with_skip: float, mine: int | None, limit: float, out: Outcome
+) -> None:
+    """Pair image i as the optimum does only if no alignment within the margin does otherwise."""
+    alts = [v for j, v in with_pair.items() if j != mine]
+    if mine is not None:
+        alts.append(with_skip)
+    alt = min(alts, default=math.inf)
+    near = sorted(j for j, v in with_pair.items() if v <= limit)
+    if alt > limit:
         if mine is not None:
-            alts.append(with_skip)
-        alt = min(alts, default=inf)
-        near = sorted(bb + lo for bb, v in with_pair.items() if v <= limit)
-        if alt > limit:
-            if mine is not None:
-                out.pairs[i] = mine + lo
-            else:
-                out.extra[i] = IMAGE_EXTRA
-            continue
-        if mine is None and not near:
-            out.extra[i] = IMAGE_EXTRA
-            continue
-        if not card.has_time(i):
-            why = "no EXIF time and the order does not single out one exposure"
-        elif with_skip <= limit:
-            why = "its EXIF time fits these exposures and the counts do not say which image is the extra one"
+            out.pairs[i] = mine
         else:
-            why = "its EXIF time fits several exposures and the order does not decide"
-        out.ambiguous[i] = (near, why)
-        out.frame_ambiguous.update(near)
+            out.extra[i] = IMAGE_EXTRA
+        return
+    if mine is None and not near:
+        out.extra[i] = IMAGE_EXTRA
+        return
+    if not card.has_time(i):
+        why = "no EXIF time and the order does not single out one exposure"
+    elif with_skip <= limit:
+        why = "its EXIF time fits these exposures and the counts do not say which image is the extra one"
+    else:
+        why = "its EXIF time fits several exposures and the order does not decide"
+    out.ambiguous[i] = (near, why)
+    out.frame_ambiguous.update(near)
 
 
 def _pair_sets(

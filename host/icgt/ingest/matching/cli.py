@@ -5,17 +5,22 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
-from icgt.ingest.matching.core import match_images
+from tqdm import tqdm
+
 from icgt.ingest.matching.results import MatchError
+from icgt.ingest.matching.reuse import match_images_reusing
 
 
 def cmd_match(args: argparse.Namespace) -> int:
-    """`icgt match --images DIR LOG [--json OUT] [--camera-id N] [--tolerance S]`.
+    """`icgt match --images DIR LOG [--json OUT] [--camera-id N] [--tolerance S] [--no-progress]`.
 
     Prints the summary, every ambiguous and unmatched image; exit status 0 when every image is
-    decided (paired or explained), 2 when some are ambiguous and need a look."""
+    decided (paired or explained), 2 when some are ambiguous and need a look. The result is kept
+    (icgt.ingest.matching.reuse) for `icgt export` of the same log and card, which then does not match again."""
     from icgt.ingest.reader import read
 
     log_path: Path = args.log
@@ -25,12 +30,23 @@ def cmd_match(args: argparse.Namespace) -> int:
     if not frames:
         raise MatchError(f"{log_path}: the recording has no frames")
     tolerance = getattr(args, "tolerance", None)
-    result = match_images(
-        frames,
-        images,
-        camera_id=getattr(args, "camera_id", None),
-        time_tolerance_s=0.02 if tolerance is None else float(tolerance),
-    )
+    quiet = bool(getattr(args, "no_progress", False))
+    reading = tqdm(desc="match: EXIF times", unit="image", disable=quiet)
+    aligning = tqdm(desc="match: alignment", unit="step", disable=quiet)
+    try:
+        result, kept = match_images_reusing(
+            frames,
+            images,
+            camera_id=getattr(args, "camera_id", None),
+            time_tolerance_s=0.02 if tolerance is None else float(tolerance),
+            progress=_ticker(reading),
+            align_progress=_ticker(aligning),
+            reuse=False,
+            keep=True,
+        )
+    finally:
+        reading.close()
+        aligning.close()
     print(result.summary())
     for a in result.ambiguous:
         seqs = ", ".join(str(f.frame_seq) for f in a.candidates) or "none left"
@@ -44,4 +60,14 @@ def cmd_match(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise MatchError(f"cannot write {out}: {exc.strerror or exc}") from None
         print(f"written {out}", file=sys.stderr)
+    if kept is not None:
+        print(f"kept for icgt export: {kept}", file=sys.stderr)
     return 2 if result.ambiguous else 0
+
+
+def _ticker(bar: tqdm[Any]) -> Callable[[int, int], None]:
+    def tick(done: int, total: int) -> None:
+        bar.total = total
+        bar.update(done - bar.n)
+
+    return tick

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from icgt.ingest.matching.align import solve
+from icgt.ingest.matching.align import solve, solve_cost
 from icgt.ingest.matching.clock import fit
 from icgt.ingest.matching.results import AMBIGUITY_MARGIN
 from icgt.ingest.matching.state import Card, Frames, Model, Outcome
@@ -38,7 +38,7 @@ def settle(card: Card, fr: Frames, start: Model, tolerance_s: float) -> Model:
     """The middle of the run of scanned offsets around `start` that cost least."""
     step, reach = grid(fr, card, tolerance_s, coarse=True)
     base = solve(card, fr, start, 0.0)
-    found = scan(card, fr, start, base.cost, step, reach, centre=True)
+    found = _scan(card, fr, start, base.cost, step, reach, centre=True, outcomes=False)
     if not found:
         return start
     least = min(c for c, _m, _o, _k in found)
@@ -53,6 +53,17 @@ def settle(card: Card, fr: Frames, start: Model, tolerance_s: float) -> Model:
 
 
 def scan(
+    card: Card, fr: Frames, model: Model, best: float, step: float, reach: float
+) -> list[tuple[float, Model, Outcome, int]]:
+    """Solutions at offsets around `model` (a grid) that may cost at most `best` + AMBIGUITY_MARGIN.
+
+    Each offset is solved with its windows widened by half the grid step, so an alignment that fits
+    anywhere between two grid offsets is seen (the scan errs towards ambiguity).
+    """
+    return [(c, m, o, k) for c, m, o, k in _scan(card, fr, model, best, step, reach) if o is not None]
+
+
+def _scan(
     card: Card,
     fr: Frames,
     model: Model,
@@ -61,12 +72,9 @@ def scan(
     reach: float,
     *,
     centre: bool = False,
-) -> list[tuple[float, Model, Outcome, int]]:
-    """Solutions at offsets around `model` (a grid) that may cost at most `best` + AMBIGUITY_MARGIN.
-
-    Each offset is solved with its windows widened by half the grid step, so an alignment that fits
-    anywhere between two grid offsets is seen (the scan errs towards ambiguity).
-    """
+    outcomes: bool = True,
+) -> list[tuple[float, Model, Outcome | None, int]]:
+    """`scan`; without `outcomes` only the costs (forward passes, stopped once past the margin)."""
     xe = fr.x[fr.eligible]
     if len(xe) < 2 or len(card.timed) == 0:
         return []
@@ -78,8 +86,9 @@ def scan(
     t_pad = float(fr.tol.max()) + step / 2.0
     untimed = float(len(card) - len(card.timed))
     uniq, first, counts = np.unique(c, return_index=True, return_counts=True)
-    seen: dict[int, tuple[float, Model, Outcome, int] | None] = {}
-    out: list[tuple[float, Model, Outcome, int]] = []
+    seen: dict[int, tuple[float, Model, Outcome | None, int] | None] = {}
+    out: list[tuple[float, Model, Outcome | None, int]] = []
+    limit = best + AMBIGUITY_MARGIN
     for k in range(-math.floor(reach / step), math.floor(reach / step) + 1):
         if k == 0 and not centre:
             continue
@@ -107,10 +116,12 @@ def scan(
         excess = float(np.clip((core_hi - core_lo) - counts, 0, None).sum())
         # (an image without EXIF time may take any of those exposures)
         bound += max(0.0, uncovered + excess - untimed) * min_skip
-        if bound > best + AMBIGUITY_MARGIN:
+        if bound > limit:
             continue
-        alt = solve(card, fr, m, step / 2.0)
-        if alt.cost <= best + AMBIGUITY_MARGIN:
-            out.append((alt.cost, m, alt, k))
-            seen[signature] = out[-1]
+        cost = solve_cost(card, fr, m, step / 2.0, limit)
+        if cost > limit:
+            continue
+        alt = solve(card, fr, m, step / 2.0) if outcomes else None
+        out.append((cost, m, alt, k))
+        seen[signature] = out[-1]
     return out

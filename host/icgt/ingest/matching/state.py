@@ -41,6 +41,7 @@ class Frames:
     skip_prefix: FloatArray = field(default_factory=lambda: np.zeros(1))  # skip_prefix[j] = sum(skip[:j])
     eligible_prefix: IntArray = field(default_factory=lambda: np.zeros(1, dtype=np.int64))
     cache: dict[tuple[Any, ...], Outcome] = field(default_factory=dict)  # solved small segments
+    cost_cache: dict[tuple[Any, ...], float] = field(default_factory=dict)  # their costs alone
 
 
 @dataclass

@@ -176,7 +176,7 @@ def test_banded_alignment_equals_the_full_table(segment: tuple[list[list[int]], 
     pair, skip, si = segment
     p, q = len(pair), len(skip)
     times = [ImageTime(Path(f"{i}.JPG"), 1000.0 + i, 1.0) for i in range(p)]
-    cands = [list(s) for s in pair]
+    cands = [tuple(s) for s in pair]
     ranges: list[tuple[int, int] | None] = [(min(s), max(s)) if s else (0, q - 1) for s in pair]
     fr = Frames([], [], [], [True] * q, skip, si, 0)  # type: ignore[arg-type]
     import numpy as np

@@ -35,13 +35,17 @@ MAX_SEGMENT_CELLS = 4_000_000
 _CACHE_MAX_IMAGES = 64  # segments up to this many images are remembered (offset scans repeat most of them)
 
 
-def windows(card: Card, fr: Frames, model: Model, widen: float) -> tuple[list[list[int]], list[tuple[int, int] | None]]:
+Cands = list[tuple[int, ...]]
+"""Per image, the frames its window admits (ascending)."""
+
+
+def windows(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, list[tuple[int, int] | None]]:
     """Per image: the frames its padded EXIF window admits (timed images), and the frame range it may use."""
     n, m = len(card), len(fr.recs)
     p = np.asarray(model.predict(fr.x), dtype=np.float64)
     tol = fr.tol + widen
     tmax = float(tol.max()) if len(tol) else 0.0
-    cands: list[list[int]] = [[] for _ in range(n)]
+    cands: list[tuple[int, ...]] = [()] * n
     ranges: list[tuple[int, int] | None] = [None] * n
     ti = card.timed
     if len(ti) and m:
@@ -57,14 +61,14 @@ def windows(card: Card, fr: Frames, model: Model, widen: float) -> tuple[list[li
         keep = fr.eligible[j] & (dist <= tol[j])  # inside the padded window: timing noise carries no evidence
         jj, rr = j[keep], rep[keep]
         counts = np.bincount(rr, minlength=len(ti))
+        ends = np.cumsum(counts)
+        begins = ends - counts
+        nz = np.flatnonzero(counts)
         flat = jj.tolist()
-        pos = 0
-        for i, c in zip(ti.tolist(), counts.tolist(), strict=True):
-            if c:
-                cand = flat[pos : pos + c]
-                cands[i] = cand
-                ranges[i] = (cand[0], cand[-1])
-                pos += c
+        for i, s0, s1 in zip(ti[nz].tolist(), begins[nz].tolist(), ends[nz].tolist(), strict=True):
+            cand = tuple(flat[s0:s1])
+            cands[i] = cand
+            ranges[i] = (cand[0], cand[-1])
     # Images without a time may take any exposure between their timed neighbours' windows.
     untimed = [i for i in range(n) if not card.has_time(i)] if len(ti) < n else []
     if untimed:
@@ -85,7 +89,7 @@ Segments = list[tuple[list[int], int, int]]
 
 def segments(
     card: Card, fr: Frames, model: Model, widen: float
-) -> tuple[list[list[int]], list[tuple[int, int] | None], Segments, list[int]]:
+) -> tuple[Cands, list[tuple[int, int] | None], Segments, list[int]]:
     """Windows, ranges made monotone, the independent segments (images, first, last frame), extra images.
 
     Ranges made monotone (a camera numbers in time order): an image may not start before the latest
@@ -118,12 +122,13 @@ def segments(
 
 
 def _segment_key(
-    card: Card, cands: list[list[int]], ranges: list[tuple[int, int] | None], imgs: list[int], lo: int, hi: int
+    card: Card, cands: Cands, ranges: list[tuple[int, int] | None], imgs: list[int], lo: int, hi: int
 ) -> tuple[object, ...] | None:
     """The same images seeing the same exposures give the same answer (offset scans repeat most segments)."""
     if len(imgs) > _CACHE_MAX_IMAGES:
         return None
-    return (lo, hi, *((i, tuple(cands[i])) if card.has_time(i) else (i, ranges[i]) for i in imgs))
+    has = card.has
+    return (lo, hi, *((i, *cands[i]) if has[i] else (i, ranges[i]) for i in imgs))
 
 
 def solve_cost(card: Card, fr: Frames, model: Model, widen: float, limit: float) -> float:
@@ -194,7 +199,7 @@ def solve(card: Card, fr: Frames, model: Model, widen: float) -> Outcome:
 def _prepare(
     card: Card,
     fr: Frames,
-    cands: list[list[int]],
+    cands: Cands,
     ranges: list[tuple[int, int] | None],
     imgs: list[int],
     lo: int,
@@ -259,7 +264,7 @@ def _f_at(f: list[list[float]], band_a: list[int], band_b: list[int], pf: list[f
 def solve_segment(
     card: Card,
     fr: Frames,
-    cands: list[list[int]],
+    cands: Cands,
     ranges: list[tuple[int, int] | None],
     imgs: list[int],
     lo: int,
@@ -319,7 +324,7 @@ def solve_segment(
 def _solve_single(
     card: Card,
     fr: Frames,
-    cands: list[list[int]],
+    cands: Cands,
     ranges: list[tuple[int, int] | None],
     i: int,
     lo: int,
@@ -374,7 +379,7 @@ def _decide(
 def _pair_sets(
     card: Card,
     fr: Frames,
-    cands: list[list[int]],
+    cands: Cands,
     ranges: list[tuple[int, int] | None],
     imgs: list[int],
     lo: int,
@@ -382,8 +387,9 @@ def _pair_sets(
 ) -> list[list[int]]:
     """Per image of the segment, the local columns it may pair with (every pair inside its window costs 0)."""
     pair: list[list[int]] = []
+    has = card.has
     for i in imgs:
-        if card.has_time(i):
+        if has[i]:
             pair.append([j - lo for j in cands[i] if lo <= j <= hi])
         else:
             r = ranges[i]

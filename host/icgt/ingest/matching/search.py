@@ -38,7 +38,9 @@ def settle(card: Card, fr: Frames, start: Model, tolerance_s: float) -> Model:
     """The middle of the run of scanned offsets around `start` that cost least."""
     step, reach = grid(fr, card, tolerance_s, coarse=True)
     base = solve(card, fr, start, 0.0)
-    found = _scan(card, fr, start, base.cost, step, reach, centre=True, outcomes=False)
+    # Widened windows only add options, so the scan's own centre costs at most base.cost: no offset
+    # costing more can be among the least.
+    found = _scan(card, fr, start, base.cost - AMBIGUITY_MARGIN + 1e-6, step, reach, centre=True, outcomes=False)
     if not found:
         return start
     least = min(c for c, _m, _o, _k in found)
@@ -74,7 +76,8 @@ def _scan(
     centre: bool = False,
     outcomes: bool = True,
 ) -> list[tuple[float, Model, Outcome | None, int]]:
-    """`scan`; without `outcomes` only the costs (forward passes, stopped once past the margin)."""
+    """`scan`; without `outcomes` only the offsets that may cost least, with their costs (forward passes
+    stopped once past the margin or past the least cost found so far)."""
     xe = fr.x[fr.eligible]
     if len(xe) < 2 or len(card.timed) == 0:
         return []
@@ -124,4 +127,8 @@ def _scan(
         alt = solve(card, fr, m, step / 2.0) if outcomes else None
         out.append((cost, m, alt, k))
         seen[signature] = out[-1]
+        if not outcomes:
+            # Costs only (settle): what matters are the offsets that cost least, so once one is
+            # found the others need only be followed as long as they can still tie with it.
+            limit = min(limit, cost + 1e-6)
     return out

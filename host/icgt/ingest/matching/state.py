@@ -52,6 +52,7 @@ class Card:
     c: FloatArray  # interval start (the EXIF time) [s]
     r: FloatArray  # interval length (the resolution) [s]
     timed: IntArray  # indices of images with a time, in card order
+    has: list[bool]  # has[i]: image i has an EXIF time
 
     @classmethod
     def of(cls, times: Sequence[ImageTime]) -> Card:
@@ -59,13 +60,13 @@ class Card:
         c = np.array([t.time_s if t.time_s is not None else np.nan for t in ts], dtype=np.float64)
         r = np.array([t.resolution_s if t.resolution_s is not None else np.nan for t in ts], dtype=np.float64)
         timed = np.flatnonzero(~(np.isnan(c) | np.isnan(r))).astype(np.int64)
-        return cls(ts, c, r, timed)
+        return cls(ts, c, r, timed, [t.time_s is not None for t in ts])
 
     def __len__(self) -> int:
         return len(self.times)
 
     def has_time(self, i: int) -> bool:
-        return self.times[i].time_s is not None
+        return self.has[i]
 
 
 @dataclass

@@ -42,21 +42,24 @@ a lower bound on the cost to skip hopeless ones); any pair that a solution withi
 differently is not made. (3) An image without EXIF time is paired by order only when both its
 neighbours on the card are paired by time and exactly one exposure lies between theirs.
 
-Scaling: banded dynamic programming around the fitted clock. The pairing a camera clock model
-allows is a band: image i may only pair with the few exposures inside its window, and since both
-sequences are ordered, the rows of the alignment only differ from plain sums of skip costs within
-[least frame any later image may take, one past the greatest frame any earlier image may take].
-The DP keeps each row on that band only (`icgt.ingest.matching.align`), with values outside it
-following exactly from prefix sums of the frames' skip costs, so its time and memory are a few cells
-per image instead of images x exposures per overlapping segment (which, with 1 s EXIF times and
-windows widened for the unknown drift, was most of the card: quadratic, 5.4 GB at 8 000 images). The
-results are those of the full DP, so every guarantee above is kept unchanged. Chosen over cutting the
-card at bursts and gaps, which alone does not bound a segment (a steady 5 fps pass chains every second
-to the next when an exposure sits near each second's boundary), and over a streaming alignment, which
-cannot compute the cost of the best alignment *without* each pair (the backward pass) that the
-ambiguity test rests on. Every offset scan is a full alignment, so all of it is linear in the card:
-windows are found by vectorised searches, small segments are remembered across offsets, and the
-offset scan's lower bound skips offsets that cannot compete. Measured by benchmarks/match_scaling.py.
+Scaling: banded dynamic programming around the fitted clock (linear in the card, time and memory).
+Under one clock model image i may only pair with the few exposures inside its window, and since both
+sequences are ordered, row r of the alignment (r images placed) only differs from plain sums of skip
+costs on [least frame any image from r - 1 on may take, one past the greatest any image up to r may
+take]. The DP keeps each row on that band only (`icgt.ingest.matching.align`); values outside follow
+exactly from prefix sums of the frames' skip costs, and every minimum the ambiguity test takes lies
+inside. So a segment costs a few cells per image instead of images x exposures, which is what made
+the old matcher quadratic: with 1 s EXIF times and windows widened for the not yet known drift, a
+steady 5 fps pass chains every second to the next and most of the card was one segment (5.4 GB at
+8 000 images). The results are exactly those of the full table (tests/ingest: a hypothesis test
+compares the two), so every guarantee above is kept. The offset searches around it stay as they
+were but cost less: a scanned offset is first costed by forward passes alone, stopped as soon as it
+exceeds the margin (or, when settling, the least cost found so far), and only a rival within the
+margin is solved in full; one-image segments are solved in closed form, small segments remembered
+across offsets, windows found by vectorised searches. Chosen over cutting the card at bursts and
+gaps, which alone does not bound a segment (the chaining above), and over a streaming alignment,
+which cannot give the cost of the best alignment *without* each pair (the backward pass) that the
+ambiguity test rests on. Measured by benchmarks/match_scaling.py against reading the EXIF alone.
 
 Limits: two unexplained events that cancel within one EXIF second (an image lost from the card
 and an extra shot) are indistinguishable from none; the default tolerance (20 ms beyond the

@@ -15,7 +15,9 @@ Each figure is measured in its own subprocess (clean peak RSS, `resource.getrusa
 (a) the floor: `read_image_time` on every image of the card (exifread, as `icgt match` reads them);
 (b) `match_images(frames, paths)`: reading plus the alignment; every pair is checked against the
     truth (a wrong pair is reported and makes the exit status 1).
-Targets (issue 17): 18 000 images in under 60 s and 1 GB peak RSS, (b) within 3 x (a).
+Targets (issue 17): 18 000 images in under 60 s and 1 GB peak RSS, (b) within 3 x (a). Wall and
+CPU (process) time are both printed: on a machine shared with other work the CPU times and their
+ratio are the steadier figures.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import random
 import resource
 import subprocess
@@ -158,17 +161,17 @@ def _child(what: str, resolution: str, n: int) -> dict[str, Any]:
     if what == "exif":
         from icgt.ingest.match import read_image_time
 
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         times = [read_image_time(p) for p in paths]
-        out["wall_s"] = time.perf_counter() - t0
+        out["wall_s"], out["cpu_s"] = time.perf_counter() - t0, time.process_time() - c0
         out["timed"] = sum(1 for t in times if t.time_s is not None)
     else:
         from icgt.ingest.match import match_images
 
         frames, truth = _frames_and_truth(_events(), n)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         result = match_images(frames, paths)
-        out["wall_s"] = time.perf_counter() - t0
+        out["wall_s"], out["cpu_s"] = time.perf_counter() - t0, time.process_time() - c0
         by_name = {p.image.relative_to(card).as_posix(): p.frame.frame_seq for p in result.pairs}
         out["wrong"] = sum(1 for name, seq in by_name.items() if truth[name] != seq)
         out["pairs"] = len(result.pairs)
@@ -203,9 +206,10 @@ def main() -> int:
         return 0
     for r in resolutions:
         _card(r)  # written outside the timed children
+    print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores at the start")
     print(
-        f"{'EXIF':>5} {'images':>6} | {'floor s':>8} {'MB':>6} | {'match s':>8} {'MB':>6} {'x floor':>7} |"
-        f" {'pairs':>6} {'ambig':>5} {'wrong':>5}"
+        f"{'EXIF':>5} {'images':>6} | {'floor s':>7} {'cpu s':>6} {'MB':>5} | {'match s':>7} {'cpu s':>6} {'MB':>5} |"
+        f" {'x floor':>7} {'(cpu)':>6} | {'pairs':>6} {'ambig':>5} {'wrong':>5}"
     )
     ok = True
     for r in resolutions:
@@ -213,19 +217,23 @@ def main() -> int:
             floor = _measure("exif", r, n)
             match = _measure("match", r, n)
             ratio = match["wall_s"] / floor["wall_s"] if floor["wall_s"] > 0 else math.inf
+            ratio_cpu = match["cpu_s"] / floor["cpu_s"] if floor["cpu_s"] > 0 else math.inf
             print(
-                f"{r:>5} {n:>6} | {floor['wall_s']:>8.2f} {floor['peak_rss_mb']:>6.0f} |"
-                f" {match['wall_s']:>8.2f} {match['peak_rss_mb']:>6.0f} {ratio:>7.2f} |"
-                f" {match['pairs']:>6} {match['ambiguous']:>5} {match['wrong']:>5}",
+                f"{r:>5} {n:>6} | {floor['wall_s']:>7.2f} {floor['cpu_s']:>6.2f} {floor['peak_rss_mb']:>5.0f} |"
+                f" {match['wall_s']:>7.2f} {match['cpu_s']:>6.2f} {match['peak_rss_mb']:>5.0f} |"
+                f" {ratio:>7.2f} {ratio_cpu:>6.2f} | {match['pairs']:>6} {match['ambiguous']:>5} {match['wrong']:>5}",
                 flush=True,
             )
             ok = ok and match["wrong"] == 0
             if n == N_MAX:
-                ok_target = match["wall_s"] < 60.0 and match["peak_rss_mb"] < 1024.0 and ratio <= 3.0
+                wall_ok = match["wall_s"] < 60.0 and match["peak_rss_mb"] < 1024.0 and ratio <= 3.0
+                cpu_ok = match["cpu_s"] < 60.0 and match["peak_rss_mb"] < 1024.0 and ratio_cpu <= 3.0
                 print(
-                    f"      target (18 000 images: < 60 s, < 1024 MB, <= 3 x floor): {'met' if ok_target else 'MISSED'}"
+                    f"      target (18 000 images: < 60 s, < 1024 MB, <= 3 x floor): wall {'met' if wall_ok else 'MISSED'},"
+                    f" cpu {'met' if cpu_ok else 'MISSED'}"
                 )
-    print("peak RSS: ru_maxrss of each subprocess (interpreter and imports included)")
+    print(f"load average {os.getloadavg()[0]:.1f} at the end (other work on the machine inflates wall times)")
+    print("peak RSS: ru_maxrss of each subprocess (interpreter and imports included); cpu: process time")
     return 0 if ok else 1
 
 

@@ -229,7 +229,7 @@ def main() -> int:
                 wall_ok = match["wall_s"] < 60.0 and match["peak_rss_mb"] < 1024.0 and ratio <= 3.0
                 cpu_ok = match["cpu_s"] < 60.0 and match["peak_rss_mb"] < 1024.0 and ratio_cpu <= 3.0
                 print(
-                    f"      target (18 000 images: < 60 s, < 1024 MB, <= 3 x floor): wall {'met' if wall_ok else 'MISSED'},"
+                    f"    target (18 000 images: < 60 s, < 1 GB, <= 3 x floor): wall {'met' if wall_ok else 'MISSED'},"
                     f" cpu {'met' if cpu_ok else 'MISSED'}"
                 )
     print(f"load average {os.getloadavg()[0]:.1f} at the end (other work on the machine inflates wall times)")

@@ -18,10 +18,21 @@ MAX_SCAN_S = 3.0
 def refine(card: Card, fr: Frames, start: Model, widen: float, max_drift_ppm: float) -> tuple[Model, Outcome]:
     """Align with widened windows (the drift is unknown), fit, and close the windows to the tolerance."""
     model = start
+    solved: dict[tuple[float, float, float], Outcome] = {}  # a fit that settled is not solved again
+
+    def solve_once(m: Model, w: float) -> Outcome:
+        key = (m.offset, m.drift, w)
+        if key not in solved:
+            solved[key] = solve(card, fr, m, w)
+        return solved[key]
+
     for w in (widen, widen, widen / 2.0, 0.0) if widen > 0 else (0.0, 0.0):
-        outcome = solve(card, fr, model, w)
+        outcome = solve_once(model, w)
         model = fit(card.times, fr, outcome.pairs, model, max_drift_ppm)
-    return model, solve(card, fr, model, 0.0)
+    final = solve_once(model, 0.0)
+    return model, Outcome(
+        final.cost, dict(final.pairs), dict(final.ambiguous), dict(final.extra), set(final.frame_ambiguous)
+    )
 
 
 def grid(fr: Frames, card: Card, tolerance_s: float, *, coarse: bool) -> tuple[float, float]:
@@ -37,10 +48,10 @@ def grid(fr: Frames, card: Card, tolerance_s: float, *, coarse: bool) -> tuple[f
 def settle(card: Card, fr: Frames, start: Model, tolerance_s: float) -> Model:
     """The middle of the run of scanned offsets around `start` that cost least."""
     step, reach = grid(fr, card, tolerance_s, coarse=True)
-    base = solve(card, fr, start, 0.0)
-    # Widened windows only add options, so the scan's own centre costs at most base.cost: no offset
+    base = solve_cost(card, fr, start, 0.0, math.inf)
+    # Widened windows only add options, so the scan's own centre costs at most the base: no offset
     # costing more can be among the least.
-    found = _scan(card, fr, start, base.cost - AMBIGUITY_MARGIN + 1e-6, step, reach, centre=True, outcomes=False)
+    found = _scan(card, fr, start, base - AMBIGUITY_MARGIN + 1e-6, step, reach, centre=True, outcomes=False)
     if not found:
         return start
     least = min(c for c, _m, _o, _k in found)
@@ -89,9 +100,13 @@ def _scan(
     t_pad = float(fr.tol.max()) + step / 2.0
     untimed = float(len(card) - len(card.timed))
     uniq, first, counts = np.unique(c, return_index=True, return_counts=True)
-    seen: dict[int, tuple[float, Model, Outcome | None, int] | None] = {}
-    out: list[tuple[float, Model, Outcome | None, int]] = []
     limit = best + AMBIGUITY_MARGIN
+    # Offsets whose windows admit the same exposures for every image (the same signature) share the
+    # first one's solution; each first one gets a lower bound on its cost: images with fewer exposures
+    # in reach than images of the same EXIF time, exposures in reach of no image, exposures deep inside
+    # one window outnumbering its images.
+    groups: dict[int, list[tuple[int, Model]]] = {}
+    firsts: list[tuple[float, int, int, Model]] = []  # (bound, k, signature, model)
     for k in range(-math.floor(reach / step), math.floor(reach / step) + 1):
         if k == 0 and not centre:
             continue
@@ -100,14 +115,10 @@ def _scan(
         lo = np.searchsorted(pe, c - t_pad, side="left")
         hi = np.searchsorted(pe, c + r + t_pad, side="right")
         signature = hash(lo.tobytes() + hi.tobytes())
-        if signature in seen:  # every image sees the same exposures as at an offset already tried
-            if seen[signature] is not None:
-                c0, _m0, o0, _k0 = seen[signature]  # type: ignore[misc]
-                out.append((c0, m, o0, k))
+        if signature in groups:  # every image sees the same exposures as at an offset already tried
+            groups[signature].append((k, m))
             continue
-        seen[signature] = None
-        # A lower bound on the cost: images with fewer exposures in reach than images of the same
-        # EXIF time, exposures in reach of no image, exposures deep inside one window outnumbering its images.
+        groups[signature] = [(k, m)]
         bound = 0.0
         avail = hi[first] - lo[first]
         bound += float(np.clip(counts - avail, 0, None).sum()) * fr.image_skip
@@ -119,16 +130,21 @@ def _scan(
         excess = float(np.clip((core_hi - core_lo) - counts, 0, None).sum())
         # (an image without EXIF time may take any of those exposures)
         bound += max(0.0, uncovered + excess - untimed) * min_skip
+        firsts.append((bound, k, signature, m))
+    if not outcomes:
+        # Costs only (settle): what matters are the offsets that cost least, so the most promising
+        # go first and, once one is costed, the others are only followed while they can still tie.
+        firsts.sort(key=lambda t: (t[0], t[1]))
+    out: list[tuple[float, Model, Outcome | None, int]] = []
+    for bound, _k, signature, m in firsts:
         if bound > limit:
             continue
         cost = solve_cost(card, fr, m, step / 2.0, limit)
         if cost > limit:
             continue
         alt = solve(card, fr, m, step / 2.0) if outcomes else None
-        out.append((cost, m, alt, k))
-        seen[signature] = out[-1]
+        out.extend((cost, mm, alt, kk) for kk, mm in groups[signature])
         if not outcomes:
-            # Costs only (settle): what matters are the offsets that cost least, so once one is
-            # found the others need only be followed as long as they can still tie with it.
             limit = min(limit, cost + 1e-6)
+    out.sort(key=lambda t: t[3])
     return out

@@ -315,6 +315,11 @@ def solve_segment(
         # the best alignment leaving image r out: min over columns of f[r] + g[r + 1]; outside
         # [A_{r+1}, B_r] both sides only add frame skips, so the minimum lies inside
         with_skip = min(map(operator.add, fr_row[an - ar : br - ar + 1], g_row[: br - an + 1])) + si
+        if len(with_pair) == 1 and with_skip > limit:
+            ((j, v),) = with_pair.items()
+            if abs(v - opt) < 1e-9:  # the usual case: one exposure fits and leaving it costs too much
+                out.pairs[imgs[r]] = j
+                continue
         # The optimum's own pairing of image r. Where several alignments are optimal any of them will
         # do: the image is then ambiguous whichever is taken (the others are within the margin).
         mine = next((j for j, v in with_pair.items() if abs(v - opt) < 1e-9), None)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -79,7 +80,9 @@ def match_times(
         # Where in its neighbourhood does the offset fit best (with steady triggers a candidate can be
         # a fraction of an interval off, which shifts pairs near the seconds' boundaries)? Then the drift.
         settled = settle(card, fr, start, time_tolerance_s)
-        model, outcome = refine(card, fr, settled, widen, max_drift_ppm)
+        # (a candidate ending beyond the margin of one already found can neither win nor rival it)
+        hopeless = min((c for c, _m, _o in solutions), default=math.inf) + AMBIGUITY_MARGIN
+        model, outcome = refine(card, fr, settled, widen, max_drift_ppm, give_up_above=hopeless)
         solutions.append((outcome.cost, model, outcome))
         step_done()
     solutions.sort(key=lambda s: s[0])

@@ -15,8 +15,12 @@ MAX_SCAN_S = 3.0
 """Offsets are scanned at most this far from the fit [s]."""
 
 
-def refine(card: Card, fr: Frames, start: Model, widen: float, max_drift_ppm: float) -> tuple[Model, Outcome]:
-    """Align with widened windows (the drift is unknown), fit, and close the windows to the tolerance."""
+def refine(
+    card: Card, fr: Frames, start: Model, widen: float, max_drift_ppm: float, give_up_above: float = math.inf
+) -> tuple[Model, Outcome]:
+    """Align with widened windows (the drift is unknown), fit, and close the windows to the tolerance.
+
+    `give_up_above`: a final alignment costing more is not solved (its outcome is empty, cost infinite)."""
     model = start
     solved: dict[tuple[float, float, float], Outcome] = {}  # a fit that settled is not solved again
 
@@ -29,6 +33,12 @@ def refine(card: Card, fr: Frames, start: Model, widen: float, max_drift_ppm: fl
     for w in (widen, widen, widen / 2.0, 0.0) if widen > 0 else (0.0, 0.0):
         outcome = solve_once(model, w)
         model = fit(card.times, fr, outcome.pairs, model, max_drift_ppm)
+    if (
+        (model.offset, model.drift, 0.0) not in solved
+        and give_up_above < math.inf
+        and solve_cost(card, fr, model, 0.0, give_up_above) > give_up_above
+    ):
+        return model, Outcome(math.inf, {}, {}, {}, set())
     final = solve_once(model, 0.0)
     return model, Outcome(
         final.cost, dict(final.pairs), dict(final.ambiguous), dict(final.extra), set(final.frame_ambiguous)

@@ -10,6 +10,7 @@ import random
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -109,16 +110,24 @@ _captures = st.fixed_dictionaries(
 def test_random_cards_never_pair_wrongly(params: dict[str, Any]) -> None:
     frames, images, truth = _capture(params)
     result = match_times(frames, images)
-    wrong = [(p.image.name, p.frame.frame_seq, truth[p.image]) for p in result.pairs if truth[p.image] != p.frame.frame_seq]
+    wrong = [
+        (p.image.name, p.frame.frame_seq, truth[p.image]) for p in result.pairs if truth[p.image] != p.frame.frame_seq
+    ]
     assert not wrong, wrong[:5]
-    seen = [p.image for p in result.pairs] + [a.image for a in result.ambiguous] + [u.image for u in result.unmatched_images]
+    seen = (
+        [p.image for p in result.pairs]
+        + [a.image for a in result.ambiguous]
+        + [u.image for u in result.unmatched_images]
+    )
     assert sorted(seen) == sorted(t.path for t in images)  # every image decided or reported, once
     used = [p.frame.frame_seq for p in result.pairs] + [u.frame.frame_seq for u in result.unmatched_frames]
     assert sorted(used) == [f.frame_seq for f in frames]  # every frame paired or reported, once
 
 
 # ----------------------------------------------------------------------------- banded DP vs the full table
-def _full_table(pair: list[list[int]], skip: list[float], si: float) -> tuple[float, list[dict[int, float]], list[float]]:
+def _full_table(
+    pair: list[list[int]], skip: list[float], si: float
+) -> tuple[float, list[dict[int, float]], list[float]]:
     """The textbook DP over all images x all frames: optimum, per image the best cost with each pair and without it."""
     p, q = len(pair), len(skip)
     inf = math.inf
@@ -178,11 +187,7 @@ def test_banded_alignment_equals_the_full_table(segment: tuple[list[list[int]], 
     times = [ImageTime(Path(f"{i}.JPG"), 1000.0 + i, 1.0) for i in range(p)]
     cands = [tuple(s) for s in pair]
     ranges: list[tuple[int, int] | None] = [(min(s), max(s)) if s else (0, q - 1) for s in pair]
-    fr = Frames([], [], [], [True] * q, skip, si, 0)  # type: ignore[arg-type]
-    import numpy as np
-
-    fr.x = np.zeros(q)
-    fr.eligible = np.ones(q, dtype=bool)
+    fr = Frames([], np.zeros(q), np.zeros(q), np.ones(q, dtype=bool), skip, si, 0)
     fr.skip_prefix = np.concatenate([[0.0], np.cumsum(np.array(skip))])
     out = Outcome(0.0, {}, {}, {}, set())
     solve_segment(Card.of(times), fr, cands, ranges, list(range(p)), 0, q - 1, out)

@@ -33,3 +33,9 @@ def export_flight(tmp_path_factory: pytest.TempPathFactory) -> object:
     from icgt.sim.scenario import load_scenario
 
     return fly(load_scenario(ROOT / "tests" / "export" / "export_flight.toml"), tmp_path_factory.mktemp("flight"))
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _match_cache(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """Matches kept by `icgt match` for `icgt export` go to a per-session folder, never the user's cache."""
+    os.environ["ICGT_MATCH_CACHE"] = str(tmp_path_factory.mktemp("match_cache"))

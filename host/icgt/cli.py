@@ -204,6 +204,7 @@ def build_parser() -> argparse.ArgumentParser:
     match.add_argument("--json", type=Path, help="write the pairing, unmatched and ambiguous items as JSON")
     match.add_argument("--camera-id", type=int, help="only this camera port's frames")
     match.add_argument("--tolerance", type=float, help="EXIF time tolerance [s] (default 0.02)")
+    match.add_argument("--no-progress", action="store_true", help="no progress bars")
     match.set_defaults(func=_cmd_match)
 
     from icgt.export.cli import add_export_arguments

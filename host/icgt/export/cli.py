@@ -188,7 +188,7 @@ def match_pairs(
     """Match the card's images to the frames (icgt.ingest.match); every leftover is reported per image."""
     from tqdm import tqdm
 
-    from icgt.ingest.match import match_images
+    from icgt.ingest.matching.reuse import match_images_reusing
 
     bar = tqdm(desc="match (EXIF times)", unit="image", disable=not progress)
 
@@ -197,7 +197,7 @@ def match_pairs(
         bar.update(done - bar.n)
 
     try:
-        result = match_images(frames, images_dir, progress=tick)
+        result, _reused = match_images_reusing(frames, images_dir, progress=tick)  # icgt match's, if made
     finally:
         bar.close()
     pairs: list[tuple[Path | None, FrameRecord, float | None]] = [

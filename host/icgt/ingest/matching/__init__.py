@@ -1,0 +1,1 @@
+"""Match the camera card's JPEGs to the recorded exposures (`icgt match`); see `icgt.ingest.match`."""

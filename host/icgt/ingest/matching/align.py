@@ -1,0 +1,422 @@
+"""The alignment for one camera clock model: monotone pairing of images and exposures, banded DP.
+
+Per image the exposures its padded EXIF window admits (`windows`); the card splits into independent
+segments wherever no window overlaps the next (`solve`); each segment is aligned by dynamic
+programming over the order of both sequences (`solve_segment`), forward and backward, so that for
+every image the cost of the best alignment that does not pair it the way the optimum does is known.
+
+Banded: row r of the DP (r images placed) is only kept on the columns [A_r, B_r] where it can differ
+from a plain sum of frame skips: A_r is the least frame any image from r - 1 on may pair with (a suffix
+minimum), B_r one past the greatest frame any image up to r may pair with (a running maximum), both
+non-decreasing. Left of A_r nothing later can pair, right of B_r nothing earlier did, so the values
+there follow from the band's edge plus the frames' skip costs (prefix sums), and every minimum the
+ambiguity test takes lies inside the band. The result equals the full DP's; time and memory are the
+sum of the band widths, a few exposures per image, instead of images x exposures per segment.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+import operator
+
+import numpy as np
+
+from icgt.ingest.matching.results import (
+    AMBIGUITY_MARGIN,
+    IMAGE_EXTRA,
+    IMAGE_NO_EXPOSURE,
+    IMAGE_NO_TIME_UNPLACED,
+)
+from icgt.ingest.matching.state import Card, Frames, Model, Outcome
+
+MAX_SEGMENT_CELLS = 4_000_000
+"""Band cells of one segment beyond which runs of images without EXIF time are left out of it."""
+_CACHE_MAX_IMAGES = 64  # segments up to this many images are remembered (offset scans repeat most of them)
+
+
+Cands = list[tuple[int, ...]]
+"""Per image, the frames its window admits (ascending)."""
+
+
+def windows(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, list[tuple[int, int] | None]]:
+    """Per image: the frames its padded EXIF window admits (timed images), and the frame range it may use."""
+    n, m = len(card), len(fr.recs)
+    p = np.asarray(model.predict(fr.x), dtype=np.float64)
+    tol = fr.tol + widen
+    tmax = float(tol.max()) if len(tol) else 0.0
+    cands: list[tuple[int, ...]] = [()] * n
+    ranges: list[tuple[int, int] | None] = [None] * n
+    ti = card.timed
+    if len(ti) and m:
+        lo_t, hi_t = card.c[ti], card.c[ti] + card.r[ti]
+        a = np.searchsorted(p, lo_t - tmax, side="left")
+        b = np.searchsorted(p, hi_t + tmax, side="right")
+        cnt = np.maximum(b - a, 0)
+        rep = np.repeat(np.arange(len(ti)), cnt)
+        starts = np.cumsum(cnt) - cnt
+        j = np.arange(int(cnt.sum()), dtype=np.int64) - np.repeat(starts, cnt) + np.repeat(a, cnt)
+        pj = p[j]
+        dist = np.maximum(np.maximum(lo_t[rep] - pj, pj - hi_t[rep]), 0.0)
+        keep = fr.eligible[j] & (dist <= tol[j])  # inside the padded window: timing noise carries no evidence
+        jj, rr = j[keep], rep[keep]
+        counts = np.bincount(rr, minlength=len(ti))
+        ends = np.cumsum(counts)
+        begins = ends - counts
+        nz = np.flatnonzero(counts)
+        flat = jj.tolist()
+        for i, s0, s1 in zip(ti[nz].tolist(), begins[nz].tolist(), ends[nz].tolist(), strict=True):
+            cand = tuple(flat[s0:s1])
+            cands[i] = cand
+            ranges[i] = (cand[0], cand[-1])
+    # Images without a time may take any exposure between their timed neighbours' windows.
+    untimed = [i for i in range(n) if not card.has_time(i)] if len(ti) < n else []
+    if untimed:
+        placed = [i for i in ti.tolist() if ranges[i] is not None]
+        for i in untimed:
+            k = bisect.bisect_left(placed, i)
+            before = ranges[placed[k - 1]] if k > 0 else None
+            after = ranges[placed[k]] if k < len(placed) else None
+            lo = before[0] if before is not None else 0
+            hi = after[1] if after is not None else m - 1
+            has = m > 0 and lo <= hi and int(fr.eligible_prefix[hi + 1] - fr.eligible_prefix[lo]) > 0
+            ranges[i] = (lo, hi) if has else None
+    return cands, ranges
+
+
+Segments = list[tuple[list[int], int, int]]
+
+
+def segments(
+    card: Card, fr: Frames, model: Model, widen: float
+) -> tuple[Cands, list[tuple[int, int] | None], Segments, list[int]]:
+    """Windows, ranges made monotone, the independent segments (images, first, last frame), extra images.
+
+    Ranges made monotone (a camera numbers in time order): an image may not start before the latest
+    start of the images before it (a running maximum; an image whose range then closes is extra).
+    Segments where ranges overlap: a new one starts past the greatest end so far."""
+    cands, ranges = windows(card, fr, model, widen)
+    n = len(card)
+    with_range = [i for i in range(n) if ranges[i] is not None]
+    segs: Segments = []
+    extra: list[int] = []
+    if with_range:
+        r0 = np.array([ranges[i][0] for i in with_range], dtype=np.int64)  # type: ignore[index]
+        r1 = np.array([ranges[i][1] for i in with_range], dtype=np.int64)  # type: ignore[index]
+        lo_adj = np.maximum.accumulate(r0)
+        kept = lo_adj <= r1
+        extra = np.asarray(with_range)[~kept].tolist()
+        for i in extra:
+            ranges[i] = None
+        ki = np.asarray(with_range)[kept]
+        klo, khi = lo_adj[kept], r1[kept]
+        reach = np.maximum.accumulate(khi)
+        starts = np.flatnonzero(np.concatenate([[True], klo[1:] > reach[:-1]])) if len(ki) else np.zeros(0, int)
+        ends = np.concatenate([starts[1:], [len(ki)]]).astype(np.int64)
+        ki_l, klo_l, khi_l, reach_l = ki.tolist(), klo.tolist(), khi.tolist(), reach.tolist()
+        for k, i in enumerate(ki_l):
+            ranges[i] = (klo_l[k], khi_l[k])
+        for s0, s1 in zip(starts.tolist(), ends.tolist(), strict=True):
+            segs.append((ki_l[s0:s1], klo_l[s0], reach_l[s1 - 1]))
+    return cands, ranges, segs, extra
+
+
+def _segment_key(
+    card: Card, cands: Cands, ranges: list[tuple[int, int] | None], imgs: list[int], lo: int, hi: int
+) -> tuple[object, ...] | None:
+    """The same images seeing the same exposures give the same answer (offset scans repeat most segments)."""
+    if len(imgs) > _CACHE_MAX_IMAGES:
+        return None
+    has = card.has
+    return (lo, hi, *((i, *cands[i]) if has[i] else (i, ranges[i]) for i in imgs))
+
+
+def solve_cost(card: Card, fr: Frames, model: Model, widen: float, limit: float) -> float:
+    """The cost of `solve` (forward passes only), or infinity as soon as it is known to exceed `limit`."""
+    cands, ranges, segs, _extra = segments(card, fr, model, widen)
+    cost = sum(fr.image_skip for r in ranges if r is None) + float(fr.skip_prefix[-1])
+    for _imgs, lo, hi in segs:
+        cost -= float(fr.skip_prefix[hi + 1] - fr.skip_prefix[lo])
+    for imgs, lo, hi in segs:
+        if cost > limit:
+            return math.inf
+        if len(imgs) == 1:
+            one = _pair_sets(card, fr, cands, ranges, imgs, lo, hi)[0]
+            total = float(fr.skip_prefix[hi + 1] - fr.skip_prefix[lo])
+            cost += min([total + fr.image_skip] + [total - fr.skip[j + lo] for j in one])
+            continue
+        key = _segment_key(card, cands, ranges, imgs, lo, hi)
+        known = fr.cache.get(key) if key is not None else None
+        if known is not None:
+            cost += known.cost
+            continue
+        seg_cost = fr.cost_cache.get(key) if key is not None else None
+        if seg_cost is None:
+            _imgs, pair, band_a, band_b, pf, sf = _prepare(card, fr, cands, ranges, imgs, lo, hi, None)
+            f = _forward(pair, band_a, band_b, pf, sf, fr.image_skip)
+            seg_cost = _f_at(f, band_a, band_b, pf, len(pair), hi - lo + 1)
+            if key is not None:
+                fr.cost_cache[key] = seg_cost
+        cost += seg_cost
+    return cost if cost <= limit else math.inf
+
+
+def solve(card: Card, fr: Frames, model: Model, widen: float) -> Outcome:
+    """The alignment under `model` with every window widened by `widen` [s]."""
+    cands, ranges, segs, extra = segments(card, fr, model, widen)
+    n = len(card)
+    out = Outcome(0.0, {}, {}, {}, set())
+    for i in extra:
+        out.extra[i] = IMAGE_EXTRA
+    in_seg_skip = 0.0
+    for imgs, lo, hi in segs:
+        in_seg_skip += float(fr.skip_prefix[hi + 1] - fr.skip_prefix[lo])
+        if len(imgs) == 1:
+            out.cost += _solve_single(card, fr, cands, ranges, imgs[0], lo, hi, out)
+            continue
+        key = _segment_key(card, cands, ranges, imgs, lo, hi)
+        part = fr.cache.get(key) if key is not None else None
+        if part is None:
+            part = Outcome(0.0, {}, {}, {}, set())
+            solve_segment(card, fr, cands, ranges, imgs, lo, hi, part)
+            if key is not None:
+                fr.cache[key] = part
+        out.cost += part.cost
+        out.pairs.update(part.pairs)
+        out.ambiguous.update(part.ambiguous)
+        out.extra.update(part.extra)
+        out.frame_ambiguous.update(part.frame_ambiguous)
+    for i in range(n):
+        if ranges[i] is None and i not in out.extra:
+            out.extra[i] = IMAGE_NO_EXPOSURE if card.has_time(i) else IMAGE_NO_TIME_UNPLACED
+            out.cost += fr.image_skip
+        elif ranges[i] is None and i in out.extra:
+            out.cost += fr.image_skip
+    out.cost += float(fr.skip_prefix[-1]) - in_seg_skip
+    return out
+
+
+def _prepare(
+    card: Card,
+    fr: Frames,
+    cands: Cands,
+    ranges: list[tuple[int, int] | None],
+    imgs: list[int],
+    lo: int,
+    hi: int,
+    out: Outcome | None,
+) -> tuple[list[int], list[list[int]], list[int], list[int], list[float], list[float]]:
+    """(images, pair columns, bands A and B, skip prefix sums, skip costs) of a segment in local columns."""
+    q = hi - lo + 1
+    pair = _pair_sets(card, fr, cands, ranges, imgs, lo, hi)
+    band_a, band_b = _bands(pair, q)
+    if sum(b - a + 1 for a, b in zip(band_a, band_b, strict=True)) > MAX_SEGMENT_CELLS:
+        # Only long runs of images without EXIF time make bands this wide: leave them out.
+        if out is not None:
+            for i in imgs:
+                if not card.has_time(i):
+                    out.ambiguous[i] = ([], "no EXIF time, in a run of such images too long to place by order")
+        imgs = [i for i in imgs if card.has_time(i)]
+        pair = _pair_sets(card, fr, cands, ranges, imgs, lo, hi)
+        band_a, band_b = _bands(pair, q)
+    pf: list[float] = (fr.skip_prefix[lo : hi + 2] - fr.skip_prefix[lo]).tolist()  # pf[b]: skip local 0..b-1
+    return imgs, pair, band_a, band_b, pf, fr.skip[lo : hi + 1]
+
+
+def _forward(
+    pair: list[list[int]], band_a: list[int], band_b: list[int], pf: list[float], sf: list[float], si: float
+) -> list[list[float]]:
+    """f[r][b - A_r] = best cost of images[:r] with frames[:b], on the bands."""
+    p = len(pair)
+    f: list[list[float]] = [pf[band_a[0] : band_b[0] + 1]]
+    for r in range(p):
+        ar, br = band_a[r], band_b[r]
+        an, bn = band_a[r + 1], band_b[r + 1]
+        prev = f[r]
+        row = [v + si for v in prev[an - ar :]]  # columns an..br
+        if bn > br:
+            base = prev[-1] + si - pf[br]
+            row.extend([base + pf[b] for b in range(br + 1, bn + 1)])
+        for bb in pair[r]:  # pair image r with frame bb: from column bb to bb + 1
+            w = prev[bb - ar]
+            k = bb + 1 - an
+            if w < row[k]:
+                row[k] = w
+        last = row[0]
+        for k in range(1, len(row)):
+            w = last + sf[an + k - 1]
+            if w < row[k]:
+                row[k] = w
+            last = row[k]
+        f.append(row)
+    return f
+
+
+def _f_at(f: list[list[float]], band_a: list[int], band_b: list[int], pf: list[float], r: int, b: int) -> float:
+    if r == 0:
+        return pf[b]
+    ar, br = band_a[r], band_b[r]
+    if b > br:
+        return f[r][br - ar] + (pf[b] - pf[br])
+    return f[r][b - ar]
+
+
+def solve_segment(
+    card: Card,
+    fr: Frames,
+    cands: Cands,
+    ranges: list[tuple[int, int] | None],
+    imgs: list[int],
+    lo: int,
+    hi: int,
+    out: Outcome,
+) -> None:
+    """Align the images `imgs` with frames lo..hi (local columns 0..q) and record what is decided."""
+    q = hi - lo + 1
+    imgs, pair, band_a, band_b, pf, sf = _prepare(card, fr, cands, ranges, imgs, lo, hi, out)
+    p = len(imgs)
+    si = fr.image_skip
+    f = _forward(pair, band_a, band_b, pf, sf, si)
+    # backward: g[r][b - A_r] = best cost of images[r:] with frames[b:]
+    g: list[list[float]] = [[] for _ in range(p + 1)]
+    total = pf[q]
+    g[p] = [total - pf[b] for b in range(band_a[p], band_b[p] + 1)]
+    for r in range(p - 1, -1, -1):
+        ar, br = band_a[r], band_b[r]
+        an = band_a[r + 1]
+        nxt = g[r + 1]
+        if an > ar:
+            base = nxt[0] + pf[an] + si
+            row = [base - pf[b] for b in range(ar, an)]
+            row.extend([v + si for v in nxt[: br - an + 1]])
+        else:
+            row = [v + si for v in nxt[: br - an + 1]]
+        for bb in pair[r]:
+            w = nxt[bb + 1 - an]
+            k = bb - ar
+            if w < row[k]:
+                row[k] = w
+        last = row[-1]
+        for k in range(len(row) - 2, -1, -1):
+            w = last + sf[ar + k]
+            if w < row[k]:
+                row[k] = w
+            last = row[k]
+        g[r] = row
+
+    opt = _f_at(f, band_a, band_b, pf, p, q)
+    out.cost += opt
+    limit = opt + AMBIGUITY_MARGIN
+    for r in range(p):
+        ar, br = band_a[r], band_b[r]
+        an = band_a[r + 1]
+        fr_row, g_row = f[r], g[r + 1]
+        with_pair = {bb + lo: fr_row[bb - ar] + g_row[bb + 1 - an] for bb in pair[r]}
+        # the best alignment leaving image r out: min over columns of f[r] + g[r + 1]; outside
+        # [A_{r+1}, B_r] both sides only add frame skips, so the minimum lies inside
+        with_skip = min(map(operator.add, fr_row[an - ar : br - ar + 1], g_row[: br - an + 1])) + si
+        if len(with_pair) == 1 and with_skip > limit:
+            ((j, v),) = with_pair.items()
+            if abs(v - opt) < 1e-9:  # the usual case: one exposure fits and leaving it costs too much
+                out.pairs[imgs[r]] = j
+                continue
+        # The optimum's own pairing of image r. Where several alignments are optimal any of them will
+        # do: the image is then ambiguous whichever is taken (the others are within the margin).
+        mine = next((j for j, v in with_pair.items() if abs(v - opt) < 1e-9), None)
+        _decide(card, imgs[r], with_pair, with_skip, mine, limit, out)
+
+
+def _solve_single(
+    card: Card,
+    fr: Frames,
+    cands: Cands,
+    ranges: list[tuple[int, int] | None],
+    i: int,
+    lo: int,
+    hi: int,
+    out: Outcome,
+) -> float:
+    """A segment of one image: the DP in closed form (pair with one frame and skip the others, or skip
+    all); the optimal path's tie rule (pair first, walking back from the end) takes the last best frame."""
+    pair = [j + lo for j in _pair_sets(card, fr, cands, ranges, [i], lo, hi)[0]]
+    total = float(fr.skip_prefix[hi + 1] - fr.skip_prefix[lo])
+    skip = fr.skip
+    with_pair = {j: total - skip[j] for j in pair}
+    with_skip = total + fr.image_skip
+    opt = min(with_skip, *with_pair.values()) if with_pair else with_skip
+    mine = None
+    for j in reversed(pair):
+        if abs(with_pair[j] - opt) < 1e-9:
+            mine = j
+            break
+    _decide(card, i, with_pair, with_skip, mine, opt + AMBIGUITY_MARGIN, out)
+    return opt
+
+
+def _decide(
+    card: Card, i: int, with_pair: dict[int, float], with_skip: float, mine: int | None, limit: float, out: Outcome
+) -> None:
+    """Pair image i as the optimum does only if no alignment within the margin does otherwise."""
+    alts = [v for j, v in with_pair.items() if j != mine]
+    if mine is not None:
+        alts.append(with_skip)
+    alt = min(alts, default=math.inf)
+    near = sorted(j for j, v in with_pair.items() if v <= limit)
+    if alt > limit:
+        if mine is not None:
+            out.pairs[i] = mine
+        else:
+            out.extra[i] = IMAGE_EXTRA
+        return
+    if mine is None and not near:
+        out.extra[i] = IMAGE_EXTRA
+        return
+    if not card.has_time(i):
+        why = "no EXIF time and the order does not single out one exposure"
+    elif with_skip <= limit:
+        why = "its EXIF time fits these exposures and the counts do not say which image is the extra one"
+    else:
+        why = "its EXIF time fits several exposures and the order does not decide"
+    out.ambiguous[i] = (near, why)
+    out.frame_ambiguous.update(near)
+
+
+def _pair_sets(
+    card: Card,
+    fr: Frames,
+    cands: Cands,
+    ranges: list[tuple[int, int] | None],
+    imgs: list[int],
+    lo: int,
+    hi: int,
+) -> list[list[int]]:
+    """Per image of the segment, the local columns it may pair with (every pair inside its window costs 0)."""
+    pair: list[list[int]] = []
+    has = card.has
+    for i in imgs:
+        if has[i]:
+            pair.append([j - lo for j in cands[i] if lo <= j <= hi])
+        else:
+            r = ranges[i]
+            r0, r1 = (max(lo, r[0]), min(hi, r[1])) if r is not None else (lo, hi)
+            pair.append([j - lo for j in range(r0, r1 + 1) if fr.eligible[j]])
+    return pair
+
+
+def _bands(pair: list[list[int]], q: int) -> tuple[list[int], list[int]]:
+    """[A_r, B_r] for rows r = 0..p: A_r the least column images r-1.. may pair with (suffix minimum,
+    row 0 and 1 alike), B_r one past the greatest images ..r may pair with (running maximum), B_p = q."""
+    p = len(pair)
+    least = [min(s) if s else q for s in pair]
+    suffix = [q] * (p + 1)
+    for r in range(p - 1, -1, -1):
+        suffix[r] = min(least[r], suffix[r + 1])
+    band_a = [suffix[0]] + [suffix[r - 1] for r in range(1, p + 1)]
+    band_b = [0] * (p + 1)
+    reach = 0
+    for r in range(p):
+        if pair[r]:
+            reach = max(reach, max(pair[r]) + 1)
+        band_b[r] = min(q, max(reach, band_a[r + 1], band_a[r]))
+    band_b[p] = q
+    return band_a, band_b

@@ -1,0 +1,231 @@
+"""icgt match on random cards (hypothesis): never a wrong pair, every image and frame accounted for once;
+the banded alignment against a plain full-table DP written here; a match kept by icgt match and reused."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import random
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from icgt.demo import Flight
+from icgt.geotag import FrameRecord
+from icgt.ingest.match import ImageTime, cmd_match, list_images, match_times
+from icgt.ingest.matching.align import solve_segment
+from icgt.ingest.matching.reuse import match_images_reusing
+from icgt.ingest.matching.state import Card, Frames, Outcome
+from icgt.ingest.reader import read
+
+_MARGIN = 5.0
+
+
+def _capture(params: dict[str, Any]) -> tuple[list[FrameRecord], list[ImageTime], dict[Path, int | None]]:
+    """A random capture: triggered passes with pauses, jitter, missed triggers, manual shots, untimed
+    images, a test shot; wired (the device sees every exposure) or blind (no hot-shoe feedback)."""
+    rng = random.Random(params["seed"])
+    dt, res, wired = params["dt"], params["res"], params["wired"]
+    events: list[tuple[float, str, int]] = []
+    t, index = 10.0, 0
+    for _ in range(params["passes"]):
+        for _ in range(params["shots"]):
+            t += dt + rng.gauss(0.0, params["jitter"])
+            index += 1
+            events.append((t, "trigger", index))
+            if rng.random() < params["p_manual"]:
+                events.append((t + rng.uniform(0.03, dt - 0.03), "manual", 0))
+        t += params["pause"]
+    if params["test_shot"]:
+        events.append((rng.uniform(-200.0, 5.0), "test_shot", 0))
+    events.sort()
+    frames: list[FrameRecord] = []
+    images: list[ImageTime] = []
+    truth: dict[Path, int | None] = {}
+    for te, kind, idx in events:
+        missed = kind == "trigger" and rng.random() < params["p_miss"]
+        frame = None
+        if kind == "trigger" or (kind == "manual" and wired):
+            flags = [] if wired else ["no_feedback"]
+            if missed and wired:
+                flags = ["feedback_missing", "no_feedback"]
+            if kind == "manual":
+                flags = ["unsolicited"]
+            frame = FrameRecord(
+                frame_seq=len(frames) + 1,
+                image_index=idx,
+                camera_id=0,
+                device_flags=0,
+                trigger_device_us=0,
+                start_device_us=round(te * 1e6),
+                mid_device_us=round(te * 1e6) + 500,
+                duration_us=1000,
+                mid_host_ns=round(te * 1e9) + 500_000,
+                mid_host_uncertainty_ns=rng.choice([300_000, 900_000]),
+                time_source="system_time",
+                flags=flags,
+                position_source="gps_3d",
+                fix_type=3,
+                pose_gap_before_ms=1.0,
+                pose_gap_after_ms=1.0,
+                mid_utc_us=round((1.8e9 + te) * 1e6) + 500,
+            )
+            frames.append(frame)
+        if missed:
+            continue
+        camera = 1.8e9 + te * (1 + params["drift"]) + params["offset"] + rng.gauss(0.0, 0.002)
+        path = Path(f"IMG{len(images):05d}.JPG")
+        untimed = rng.random() < params["p_untimed"]
+        images.append(ImageTime(path, None, None) if untimed else ImageTime(path, (camera // res) * res, res))
+        truth[path] = frame.frame_seq if frame is not None else None
+    return frames, images, truth
+
+
+_captures = st.fixed_dictionaries(
+    {
+        "seed": st.integers(0, 2**32 - 1),
+        "dt": st.sampled_from([0.2, 0.25, 0.33, 0.5, 1.0, 2.0]),
+        "res": st.sampled_from([1.0, 0.01]),
+        "offset": st.sampled_from([0.0, 3600.0, -7200.0]).flatmap(lambda o: st.floats(o - 5.0, o + 5.0)),
+        "drift": st.floats(-60e-6, 60e-6),
+        "wired": st.booleans(),
+        "passes": st.integers(1, 4),
+        "shots": st.integers(3, 80),
+        "pause": st.floats(0.5, 40.0),
+        "jitter": st.sampled_from([0.0005, 0.002, 0.01]),
+        "p_miss": st.sampled_from([0.0, 0.03, 0.1]),
+        "p_manual": st.sampled_from([0.0, 0.03, 0.1]),
+        "p_untimed": st.sampled_from([0.0, 0.03, 0.1]),
+        "test_shot": st.booleans(),
+    }
+)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(_captures)
+def test_random_cards_never_pair_wrongly(params: dict[str, Any]) -> None:
+    frames, images, truth = _capture(params)
+    result = match_times(frames, images)
+    wrong = [
+        (p.image.name, p.frame.frame_seq, truth[p.image]) for p in result.pairs if truth[p.image] != p.frame.frame_seq
+    ]
+    assert not wrong, wrong[:5]
+    seen = (
+        [p.image for p in result.pairs]
+        + [a.image for a in result.ambiguous]
+        + [u.image for u in result.unmatched_images]
+    )
+    assert sorted(seen) == sorted(t.path for t in images)  # every image decided or reported, once
+    used = [p.frame.frame_seq for p in result.pairs] + [u.frame.frame_seq for u in result.unmatched_frames]
+    assert sorted(used) == [f.frame_seq for f in frames]  # every frame paired or reported, once
+
+
+# ----------------------------------------------------------------------------- banded DP vs the full table
+def _full_table(
+    pair: list[list[int]], skip: list[float], si: float
+) -> tuple[float, list[dict[int, float]], list[float]]:
+    """The textbook DP over all images x all frames: optimum, per image the best cost with each pair and without it."""
+    p, q = len(pair), len(skip)
+    inf = math.inf
+    f = [[inf] * (q + 1) for _ in range(p + 1)]
+    g = [[inf] * (q + 1) for _ in range(p + 1)]
+    for a in range(p + 1):
+        for b in range(q + 1):
+            if a == 0 and b == 0:
+                f[a][b] = 0.0
+                continue
+            best = inf
+            if a > 0:
+                best = min(best, f[a - 1][b] + si)
+                if b > 0 and (b - 1) in pair[a - 1]:
+                    best = min(best, f[a - 1][b - 1])
+            if b > 0:
+                best = min(best, f[a][b - 1] + skip[b - 1])
+            f[a][b] = best
+    for a in range(p, -1, -1):
+        for b in range(q, -1, -1):
+            if a == p and b == q:
+                g[a][b] = 0.0
+                continue
+            best = inf
+            if a < p:
+                best = min(best, g[a + 1][b] + si)
+                if b < q and b in pair[a]:
+                    best = min(best, g[a + 1][b + 1])
+            if b < q:
+                best = min(best, g[a][b + 1] + skip[b])
+            g[a][b] = best
+    with_pair = [{bb: f[a][bb] + g[a + 1][bb + 1] for bb in pair[a]} for a in range(p)]
+    with_skip = [min(f[a][b] + g[a + 1][b] for b in range(q + 1)) + si for a in range(p)]
+    return f[p][q], with_pair, with_skip
+
+
+@st.composite
+def _segments(draw: st.DrawFn) -> tuple[list[list[int]], list[float], float]:
+    q = draw(st.integers(1, 30))
+    p = draw(st.integers(1, 25))
+    pair: list[list[int]] = []
+    centre = 0.0
+    for _ in range(p):
+        centre += draw(st.floats(0.0, 2.5))
+        lo = min(q - 1, max(0, int(centre) + draw(st.integers(-3, 3))))
+        width = draw(st.integers(0, 5))
+        pair.append(list(range(lo, min(q, lo + width))))
+    skip = draw(st.lists(st.sampled_from([0.0, 2.0, 10.0]), min_size=q, max_size=q))
+    return pair, skip, draw(st.sampled_from([2.0, 10.0]))
+
+
+@settings(max_examples=300, deadline=None)
+@given(_segments())
+def test_banded_alignment_equals_the_full_table(segment: tuple[list[list[int]], list[float], float]) -> None:
+    pair, skip, si = segment
+    p, q = len(pair), len(skip)
+    times = [ImageTime(Path(f"{i}.JPG"), 1000.0 + i, 1.0) for i in range(p)]
+    cands = [tuple(s) for s in pair]
+    ranges: list[tuple[int, int] | None] = [(min(s), max(s)) if s else (0, q - 1) for s in pair]
+    fr = Frames([], np.zeros(q), np.zeros(q), np.ones(q, dtype=bool), skip, si, 0)
+    fr.skip_prefix = np.concatenate([[0.0], np.cumsum(np.array(skip))])
+    out = Outcome(0.0, {}, {}, {}, set())
+    solve_segment(Card.of(times), fr, cands, ranges, list(range(p)), 0, q - 1, out)
+    opt, with_pair, with_skip = _full_table(pair, skip, si)
+    assert out.cost == opt
+    limit = opt + _MARGIN
+    for a in range(p):
+        options = [*with_pair[a].values(), with_skip[a]]
+        best_pairs = [bb for bb, v in with_pair[a].items() if v == opt]
+        unique = len(best_pairs) == 1 and with_skip[a] > opt and sum(v <= limit for v in options) == 1
+        if unique:
+            assert out.pairs.get(a) == best_pairs[0]
+        else:
+            assert a not in out.pairs
+        near = sorted(bb for bb, v in with_pair[a].items() if v <= limit)
+        if a in out.ambiguous:
+            assert out.ambiguous[a][0] == near
+        assert (a in out.pairs) + (a in out.ambiguous) + (a in out.extra) == 1
+
+
+# ----------------------------------------------------------------------------- icgt export reuses icgt match
+def test_a_kept_match_is_reused_and_a_changed_card_is_matched_again(flight: Flight, tmp_path: Path) -> None:
+    os.environ["ICGT_MATCH_CACHE"] = str(tmp_path / "cache")
+    frames = list(read(flight.mcap).frames())
+    assert cmd_match(argparse.Namespace(images=flight.card, log=flight.mcap, json=None, no_progress=True)) in (0, 2)
+    kept = list((tmp_path / "cache").glob("*.json"))
+    assert len(kept) == 1
+    reused, where = match_images_reusing(frames, flight.card)
+    assert where == kept[0]
+    fresh, _ = match_images_reusing(frames, flight.card, reuse=False)
+    assert reused.to_json() == fresh.to_json()
+    assert [p.frame for p in reused.pairs] == [p.frame for p in fresh.pairs]
+    # a card that changed (one image rewritten) is not the card that was matched
+    image = list_images(flight.card)[3]
+    stat = image.stat()
+    os.utime(image, ns=(stat.st_atime_ns, stat.st_mtime_ns + 1_000_000_000))
+    try:
+        again, where = match_images_reusing(frames, flight.card)
+        assert where is None and again.to_json() == fresh.to_json()
+    finally:
+        os.utime(image, ns=(stat.st_atime_ns, stat.st_mtime_ns))

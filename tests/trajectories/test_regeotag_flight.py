@@ -1,0 +1,225 @@
+"""Re-geotagging a simulated flight from trajectories written from its truth with noise and a time offset.
+
+Each trajectory is the true vehicle reference point (and attitude, for TUM) sampled on a regular
+grid, moved by at most NOISE_M (a 3-D Gaussian of 1 cm per axis, clipped to 2 cm), stamped with a
+wrong clock (TIME_OFFSET_S) that the reader is told to take back. Every placed frame's camera
+position must be within NOISE_M + the interpolation allowance (the truth's largest acceleration
+times T^2 / 8 for samples T apart) + the timing allowance (the true speed times that frame's UTC or
+host-time error against the true mid-exposure) + for position-only sources, the lever arm turned by
+the recorded attitude's error, + 1 mm. And within the bound the frame reports.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import icgt
+from icgt.clocks.autopilot_clock import GPS_EPOCH_UNIX_S, GPS_UTC_LEAP_S
+from icgt.geodesy import Q_NED_TO_ENU, q_conjugate, q_from_euler_zyx, q_multiply, q_rotate
+from icgt.geotag.record import FrameRecord
+from icgt.ingest.recompute import recording_config
+from icgt.trajectories.regeotag import RegeotagConfig, regeotag, regeotag_detailed
+from icgt.trajectories.rtklib_pos import PosOptions, read_pos
+from icgt.trajectories.tum import Alignment4Dof, TumOptions, read_tum, tum_line
+
+from .conftest import Truth
+
+NOISE_M = 0.02
+TIME_OFFSET_S = -2.5  # the file's clock runs 2.5 s behind: the reader adds +2.5 s
+YAW_DEG = 37.0
+TRANSLATION = (4.0, -7.5, 1.25)
+_Q_X_180 = np.array([0.0, 1.0, 0.0, 0.0])
+
+
+def _noise(n: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    d = rng.normal(scale=0.01, size=(n, 3))
+    norm = np.linalg.norm(d, axis=1, keepdims=True)
+    return np.where(norm > NOISE_M, d * (NOISE_M / norm), d)
+
+
+def _grid(truth: Truth, rate_hz: float) -> np.ndarray:
+    sc = truth.flight.scenario
+    return np.arange(0.0, sc.duration_s + 2.0, 1.0 / rate_hz)
+
+
+def _interp_allowance(truth: Truth, tau: np.ndarray) -> float:
+    _, _, _, acc = truth.state_in_log(_grid(truth, 100.0))  # the largest true acceleration, finely sampled
+    span = float(tau[1] - tau[0])
+    return float(np.max(np.linalg.norm(acc, axis=1))) * span**2 / 8.0
+
+
+def _speed(truth: Truth, tau: float) -> float:
+    return float(np.linalg.norm(truth.trajectory.state(np.array([tau])).velocity_enu_m_s[0]))
+
+
+def _timing_allowance(truth: Truth, frame: FrameRecord, time_base: str) -> float:
+    t = truth.exposures[frame.start_device_us]
+    if time_base == "utc":
+        assert frame.mid_utc_us is not None
+        dt_s = abs(frame.mid_utc_us - t["mid_utc_us"]) / 1e6
+    else:
+        dt_s = abs(frame.mid_host_ns - t["mid_host_monotonic_ns"]) / 1e9
+    return _speed(truth, t["mid_tau_s"]) * dt_s + 1e-4
+
+
+def _attitude_allowance(truth: Truth, frame: FrameRecord, lever: np.ndarray) -> float:
+    t = truth.exposures[frame.start_device_us]
+    q_true = np.array(t["q_body_ned"])
+    q_rec = np.array([frame.body_qw, frame.body_qx, frame.body_qy, frame.body_qz])
+    return float(np.linalg.norm(q_rotate(q_rec, lever) - q_rotate(q_true, lever)))
+
+
+def _frames(truth: Truth) -> list[FrameRecord]:
+    return list(icgt.read(truth.flight.mcap).frames())
+
+
+def _matched(frames: list[FrameRecord], truth: Truth) -> list[FrameRecord]:
+    return [f for f in frames if f.start_device_us in truth.exposures]
+
+
+def write_tum(truth: Truth, path: Path, time_base: str, rate_hz: float = 20.0) -> np.ndarray:
+    tau = _grid(truth, rate_hz)
+    enu, _, q_ned, _ = truth.state_in_log(tau)
+    enu = enu + _noise(len(tau), 5)
+    q_yaw_inv = q_conjugate(q_from_euler_zyx(0.0, 0.0, math.radians(YAW_DEG)))
+    p_file = q_rotate(q_yaw_inv, enu - np.array(TRANSLATION))
+    q_flu_enu = q_multiply(q_multiply(Q_NED_TO_ENU, q_ned), _Q_X_180)
+    q_file = q_multiply(q_yaw_inv, q_flu_enu)
+    if time_base == "utc":
+        t_true = (truth.utc0_us + tau * 1e6) / 1e6
+    else:
+        t_true = (truth.host0_ns + tau * 1e9) / 1e9
+    lines = ["# timestamp tx ty tz qx qy qz qw  (written from simulator truth)"]
+    lines += [tum_line(t + TIME_OFFSET_S, p, q) for t, p, q in zip(t_true, p_file, q_file, strict=True)]
+    path.write_text("\n".join(lines) + "\n")
+    return tau
+
+
+@pytest.mark.parametrize("time_base", ["utc", "host"])
+def test_tum_regeotag_within_noise(truth: Truth, tmp_path: Path, time_base: str) -> None:
+    path = tmp_path / "vio.tum"
+    tau = write_tum(truth, path, time_base)
+    rec = icgt.read(truth.flight.mcap)
+    config = RegeotagConfig.from_recording(rec)
+    options = TumOptions(
+        time_base=time_base,  # type: ignore[arg-type]
+        time_offset_s=-TIME_OFFSET_S,
+        alignment=Alignment4Dof(YAW_DEG, TRANSLATION),
+        position_error_m=NOISE_M,
+    )
+    source = read_tum(path, config.origin, options)
+    frames = list(rec.frames())
+    result = regeotag_detailed(frames, source, config)
+    interp = _interp_allowance(truth, tau)
+    errors, margins = [], []
+    for f in _matched(result.frames, truth):
+        if f.frame_seq not in result.placed:
+            continue
+        assert f.position_source == "slam"
+        err = truth.camera_error_m(f)
+        allowed = NOISE_M + interp + _timing_allowance(truth, f, time_base) + 1e-3
+        errors.append(err)
+        margins.append(allowed - err)
+        assert err <= allowed, f"frame {f.frame_seq}: {err * 100:.2f} cm > {allowed * 100:.2f} cm"
+        assert f.position_error_bound_m is not None and err <= f.position_error_bound_m + 1e-3
+        # the attitude came from the file: body quaternion equals the truth's up to the sign
+        t = truth.exposures[f.start_device_us]
+        dot = abs(float(np.dot([f.body_qw, f.body_qx, f.body_qy, f.body_qz], t["q_body_ned"])))
+        assert dot > math.cos(math.radians(0.5) / 2), f"frame {f.frame_seq}: attitude off by > 0.5 deg"
+        assert "no_attitude" not in f.flags
+    # every frame with a time on the base inside the trajectory was placed
+    with_time = [f for f in frames if (f.mid_utc_us is not None) or time_base == "host"]
+    assert len(result.placed) == len(with_time)
+    assert len(errors) >= 40
+    print(
+        f"TUM/{time_base}: {len(errors)} frames, camera error p50 {np.median(errors) * 100:.2f} cm, "
+        f"max {max(errors) * 100:.2f} cm (interpolation allowance {interp * 1000:.2f} mm)"
+    )
+    # the same file without the time offset taken back places the frames 2.5 s wrong: far off
+    wrong = read_tum(path, config.origin, dataclasses.replace(options, time_offset_s=0.0))
+    off = regeotag(frames, wrong, config)
+    far = [truth.camera_error_m(f) for f in _matched(off, truth) if f.position_source == "slam"]
+    assert far and max(far) > 0.1
+
+
+def _pos_text(truth: Truth, tau: np.ndarray, llh: np.ndarray, q: list[int], week_tow: bool) -> str:
+    head = [
+        "% program   : icgt test (written from simulator truth)",
+        "% (lat/lon/height=WGS84/ellipsoidal,Q=1:fix,2:float,3:sbas,4:dgps,5:single,6:ppp,ns=# of satellites)",
+        "%  GPST" + (" " * 10 if week_tow else " " * 18)
+        + "latitude(deg) longitude(deg)  height(m)   Q  ns   sdn(m)   sde(m)   sdu(m)  sdne(m)  sdeu(m)  sdun(m) age(s)  ratio",
+    ]
+    rows = []
+    for k, (ta, (la, lo, h)) in enumerate(zip(tau, llh, strict=True)):
+        gps_unix = (truth.utc0_us + ta * 1e6) / 1e6 + GPS_UTC_LEAP_S + TIME_OFFSET_S
+        if week_tow:
+            week, tow = divmod(gps_unix - GPS_EPOCH_UNIX_S, 604_800.0)
+            t = f"{int(week):4d} {tow:10.3f}"
+        else:
+            dt = datetime.fromtimestamp(round(gps_unix, 3), tz=UTC)
+            t = dt.strftime("%Y/%m/%d %H:%M:%S.") + f"{dt.microsecond // 1000:03d}"
+        rows.append(
+            f"{t}  {la:14.9f} {lo:14.9f} {h:10.4f} {q[k]:3d} {14:3d} {0.008:8.4f} {0.008:8.4f} {0.012:8.4f}"
+            f" {0.001:8.4f} {-0.002:8.4f} {0.001:8.4f} {0.0:6.2f} {12.3:6.1f}"
+        )
+    return "\n".join(head + rows) + "\n"
+
+
+@pytest.mark.parametrize("week_tow", [False, True], ids=["calendar", "week_tow"])
+def test_pos_regeotag_within_noise(truth: Truth, tmp_path: Path, week_tow: bool) -> None:
+    rate = 5.0
+    tau = _grid(truth, rate)
+    gap = (tau > 6.0) & (tau < 8.0)  # a 2 s outage in the solution: frames inside it are not placed
+    tau = tau[~gap]
+    enu, _, _, _ = truth.state_in_log(tau)
+    enu = enu + _noise(len(tau), 9)
+    lat, lon, msl = truth.log_frame.enu_to_geodetic(enu)
+    llh = np.stack([lat, lon, msl + truth.geoid_m], axis=-1)
+    q = [2 if 12.0 <= t < 13.0 else 1 for t in tau]
+    path = tmp_path / "rover.pos"
+    path.write_text(_pos_text(truth, tau, llh, q, week_tow))
+    rec = icgt.read(truth.flight.mcap)
+    config = RegeotagConfig.from_recording(rec)
+    source, sol = read_pos(path, config.origin, PosOptions(geoid_separation_m=truth.geoid_m, time_offset_s=-TIME_OFFSET_S))
+    assert sol.time_system == "GPST" and sol.height == "ellipsoidal"
+    assert sol.time_format == ("week_tow" if week_tow else "calendar")
+    assert sol.q_counts[2] == sum(1 for x in q if x == 2)
+    frames = list(rec.frames())
+    result = regeotag_detailed(frames, source, config)
+    lever = np.asarray(recording_config(rec).lever_arm_body_m)
+    interp = _interp_allowance(truth, _grid(truth, rate))
+    errors = []
+    gap_misses = {seq for seq, m in result.unplaced if m.code == "gap"}
+    for f in _matched(result.frames, truth):
+        t = truth.exposures[f.start_device_us]
+        if 6.01 < t["mid_tau_s"] < 7.99 and f.mid_utc_us is not None:
+            assert f.frame_seq in gap_misses, f"frame {f.frame_seq} in the solution's gap was placed"
+        if f.frame_seq not in result.placed:
+            continue
+        assert f.position_source in ("ppk_fixed", "ppk_float")
+        if f.body_qw is None:
+            continue  # no attitude: the reference point, and a bound that says so (checked below)
+        err = truth.camera_error_m(f)
+        allowed = NOISE_M + interp + _timing_allowance(truth, f, "utc") + _attitude_allowance(truth, f, lever) + 1e-3
+        errors.append(err)
+        assert err <= allowed, f"frame {f.frame_seq}: {err * 100:.2f} cm > {allowed * 100:.2f} cm"
+        assert f.position_error_bound_m is not None and err <= f.position_error_bound_m + 1e-3
+    labels = {f.position_source for f in result.frames if f.frame_seq in result.placed}
+    assert "ppk_float" in labels and "ppk_fixed" in labels
+    for f in result.frames:
+        if f.frame_seq in result.placed and f.body_qw is None:
+            assert f.position_error_bound_m is not None and f.position_error_bound_m >= float(np.linalg.norm(lever))
+    assert len(errors) >= 30
+    with_utc = [f for f in frames if f.mid_utc_us is not None]
+    assert len(result.placed) + len(gap_misses) == len(with_utc)
+    print(
+        f".pos/{'week_tow' if week_tow else 'calendar'}: {len(errors)} frames, camera error p50 "
+        f"{np.median(errors) * 100:.2f} cm, max {max(errors) * 100:.2f} cm; {len(gap_misses)} in the gap"
+    )

@@ -6,8 +6,10 @@ frame's mid-exposure, the way the geotagger places it live (`icgt.geotag.geotagg
 * camera position = reference point + R(body->NED) * lever arm, the lever arm in body FRD axes
   (the recording's ``lever_arm_body_m`` unless the config gives another: from the GNSS antenna for
   PPK, from the tracked point for SLAM), its NED components turned to ENU as (e, n, u) = (n_E, n_N, -n_D);
-* the attitude used for the lever arm is the source's when it has one, else the recorded one; with
-  neither, the reference point is used and the lever arm's length is added to the bound;
+* the attitude used for the lever arm is the source's when it has one, else the recorded one, whose
+  error turns the lever arm: ``|lever| * recorded_attitude_error_deg`` is added to the bound, the whole
+  ``|lever|`` when the recorded pose was held across a telemetry gap (``pose_extrapolated``: its
+  attitude is as old); with neither, the reference point is used and ``|lever|`` is added;
 * camera attitude = body attitude * the camera mounting (`camera_to_body_quaternion`), or only the
   body's yaw for a stabilised gimbal; roll/pitch/yaw and the incidence on the structure follow.
 
@@ -49,6 +51,8 @@ class RegeotagConfig:
     """The recording's ENU origin (lat [deg], lon [deg], alt MSL [m])."""
     lever_arm_body_m: tuple[float, float, float] | None = None
     """Camera from the source's reference point, body FRD [m]; None: the recording's lever arm."""
+    recorded_attitude_error_deg: float = 2.0
+    """Bound on the recorded attitude's error [deg] where a position-only source borrows it."""
 
     @classmethod
     def from_recording(cls, recording: Any, **overrides: Any) -> RegeotagConfig:
@@ -90,11 +94,14 @@ def _place(frame: FrameRecord, fix: PoseFix, cfg: RegeotagConfig, local: LocalFr
     flags = set(frame.flags) - _POSE_FLAGS
     bound = fix.error_bound_m
     enu = np.asarray(fix.enu_m, dtype=float)
+    arm = float(np.linalg.norm(cfg.lever_arm))
     if body_q is not None:
         lever_ned = q_rotate(body_q, cfg.lever_arm)
         enu = enu + np.array([lever_ned[1], lever_ned[0], -lever_ned[2]])
-    else:
-        bound += float(np.linalg.norm(cfg.lever_arm))  # the camera is somewhere on that sphere
+    if body_q is None or (fix.q_body_ned is None and FrameFlag.POSE_EXTRAPOLATED.value in frame.flags):
+        bound += arm  # no attitude, or one held from before a telemetry gap: the camera is on that sphere
+    elif fix.q_body_ned is None:
+        bound += arm * math.radians(cfg.recorded_attitude_error_deg)  # the borrowed attitude's error
     if bound > g.max_position_error_m:
         flags.add(FrameFlag.STALE_POSE.value)
     la, lo, al = local.enu_to_geodetic(enu)

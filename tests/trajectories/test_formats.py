@@ -120,7 +120,12 @@ LINE_B = "2404 282401.200   37.881301000  127.729800000   100.9000   2  14   0.0
 def test_pos_reads_week_tow_gpst_and_bounds(tmp_path: Path) -> None:
     p = _pos(tmp_path, [LINE_A, LINE_B])
     traj, sol = read_pos(p, ORIGIN, PosOptions(geoid_separation_m=24.9, max_accel_m_s2=0.0))
-    assert (sol.time_system, sol.height, sol.time_format, sol.q_counts) == ("GPST", "ellipsoidal", "week_tow", {1: 1, 2: 1})
+    assert (sol.time_system, sol.height, sol.time_format, sol.q_counts) == (
+        "GPST",
+        "ellipsoidal",
+        "week_tow",
+        {1: 1, 2: 1},
+    )
     t0 = week_tow_to_utc_s(2404, 282401.0)
     fix = traj.at(t0)
     assert isinstance(fix, PoseFix) and fix.label == "ppk_fixed"
@@ -143,7 +148,9 @@ def test_pos_calendar_utc_geodetic_and_commas(tmp_path: Path) -> None:
     traj, sol = read_pos(_pos(tmp_path, [line], header), ORIGIN)
     assert (sol.time_system, sol.height, sol.time_format) == ("UTC", "geodetic", "calendar")
     assert traj.t_s[0] == pytest.approx(calendar.timegm((2026, 12, 1, 12, 0, 0)) + 0.5)
-    gpst = read_pos(_pos(tmp_path, [line.replace(",", " ", 2)], (HEADER.replace("ellipsoidal", "geodetic"), COLUMNS)), ORIGIN)
+    gpst = read_pos(
+        _pos(tmp_path, [line.replace(",", " ", 2)], (HEADER.replace("ellipsoidal", "geodetic"), COLUMNS)), ORIGIN
+    )
     assert gpst[0].t_s[0] == pytest.approx(traj.t_s[0] - 18.0)
 
 
@@ -153,11 +160,21 @@ def test_pos_calendar_utc_geodetic_and_commas(tmp_path: Path) -> None:
         ([LINE_A], (HEADER, COLUMNS), PosOptions(), "geoid separation"),
         ([LINE_A[:40]], (HEADER, COLUMNS), PosOptions(geoid_separation_m=0.0), "fields"),
         ([LINE_A.replace(" 1  14", " 7  14")], (HEADER, COLUMNS), PosOptions(geoid_separation_m=0.0), "Q = 7"),
-        ([LINE_A.replace("37.881300000", "3x.88")], (HEADER, COLUMNS), PosOptions(geoid_separation_m=0.0), "not a number"),
+        (
+            [LINE_A.replace("37.881300000", "3x.88")],
+            (HEADER, COLUMNS),
+            PosOptions(geoid_separation_m=0.0),
+            "not a number",
+        ),
         ([LINE_B, LINE_A], (HEADER, COLUMNS), PosOptions(geoid_separation_m=0.0), "times must increase"),
         ([LINE_A], (HEADER,), PosOptions(geoid_separation_m=0.0), "no time system"),
         ([LINE_A], ("% (x/y/z-ecef=WGS84,Q=1:fix)", COLUMNS), PosOptions(), "ECEF"),
-        ([LINE_A], (HEADER, COLUMNS.replace("latitude(deg)", "latitude(d'\")")), PosOptions(geoid_separation_m=0.0), "minutes"),
+        (
+            [LINE_A],
+            (HEADER, COLUMNS.replace("latitude(deg)", "latitude(d'\")")),
+            PosOptions(geoid_separation_m=0.0),
+            "minutes",
+        ),
         ([], (HEADER, COLUMNS), PosOptions(geoid_separation_m=0.0), "no solution lines"),
     ],
 )
@@ -172,7 +189,8 @@ def test_pos_malformed_gives_clear_errors(
 
 def test_mrk_reader_refuses_other_lines(tmp_path: Path) -> None:
     p = tmp_path / "Timestamp.MRK"
-    good = "1\t282401.669089\t[2404]\t   101,N\t   107,E\t   129,V\t22.77995359,Lat\t114.10089118,Lon\t139.231,Ellh\t0.002967, 0.003104, 0.007622\t50,Q"
+    fields = ["1", "282401.669089", "[2404]", "   101,N", "   107,E", "   129,V", "22.77995359,Lat", "114.10089118,Lon"]
+    good = "\t".join([*fields, "139.231,Ellh", "0.002967, 0.003104, 0.007622", "50,Q"])
     p.write_text(good + "\n")
     (line,) = read_mrk(p)
     assert (line.week, line.tow_s, line.offset_ned_mm, line.q) == (2404, 282401.669089, (101, 107, 129), 50)

@@ -153,8 +153,10 @@ def _pos_text(truth: Truth, tau: np.ndarray, llh: np.ndarray, q: list[int], week
     head = [
         "% program   : icgt test (written from simulator truth)",
         "% (lat/lon/height=WGS84/ellipsoidal,Q=1:fix,2:float,3:sbas,4:dgps,5:single,6:ppp,ns=# of satellites)",
-        "%  GPST" + (" " * 10 if week_tow else " " * 18)
-        + "latitude(deg) longitude(deg)  height(m)   Q  ns   sdn(m)   sde(m)   sdu(m)  sdne(m)  sdeu(m)  sdun(m) age(s)  ratio",
+        "%  GPST"
+        + (" " * 10 if week_tow else " " * 18)
+        + "latitude(deg) longitude(deg)  height(m)   Q  ns   sdn(m)   sde(m)   sdu(m)  sdne(m)  sdeu(m)  sdun(m)"
+        + " age(s)  ratio",
     ]
     rows = []
     for k, (ta, (la, lo, h)) in enumerate(zip(tau, llh, strict=True)):
@@ -187,7 +189,9 @@ def test_pos_regeotag_within_noise(truth: Truth, tmp_path: Path, week_tow: bool)
     path.write_text(_pos_text(truth, tau, llh, q, week_tow))
     rec = icgt.read(truth.flight.mcap)
     config = RegeotagConfig.from_recording(rec)
-    source, sol = read_pos(path, config.origin, PosOptions(geoid_separation_m=truth.geoid_m, time_offset_s=-TIME_OFFSET_S))
+    source, sol = read_pos(
+        path, config.origin, PosOptions(geoid_separation_m=truth.geoid_m, time_offset_s=-TIME_OFFSET_S)
+    )
     assert sol.time_system == "GPST" and sol.height == "ellipsoidal"
     assert sol.time_format == ("week_tow" if week_tow else "calendar")
     assert sol.q_counts[2] == sum(1 for x in q if x == 2)
@@ -223,3 +227,34 @@ def test_pos_regeotag_within_noise(truth: Truth, tmp_path: Path, week_tow: bool)
         f".pos/{'week_tow' if week_tow else 'calendar'}: {len(errors)} frames, camera error p50 "
         f"{np.median(errors) * 100:.2f} cm, max {max(errors) * 100:.2f} cm; {len(gap_misses)} in the gap"
     )
+
+
+def test_cli_regeotag_writes_and_reports(truth: Truth, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from icgt.cli import main
+    from icgt.ingest.reader import decode_frame
+
+    path = tmp_path / "vio.tum"
+    write_tum(truth, path, "utc")
+    out = tmp_path / "frames.json"
+    code = main(["regeotag", str(truth.flight.mcap), "--trajectory", str(path), "--format", "tum",
+                 "--time-offset-s", str(-TIME_OFFSET_S), "--yaw-deg", str(YAW_DEG),
+                 "--translation", ",".join(str(v) for v in TRANSLATION), "--out", str(out)])  # fmt: skip
+    assert code == 0
+    text = capsys.readouterr().out
+    frames = _frames(truth)
+    placed = [f for f in frames if f.mid_utc_us is not None]
+    assert f"placed {len(placed)} of {len(frames)} frames (slam {len(placed)})" in text
+    import json
+
+    back = [decode_frame(r) for r in json.loads(out.read_text())]
+    assert [f.frame_seq for f in back] == [f.frame_seq for f in frames]
+    assert all(truth.camera_error_m(f) < 0.05 for f in _matched(back, truth) if f.position_source == "slam")
+    csv_out = tmp_path / "frames.csv"
+    assert main(["regeotag", str(truth.flight.mcap), "--trajectory", str(path), "--format", "tum",
+                 "--out", str(csv_out)]) == 0  # fmt: skip
+    assert csv_out.read_text().count("\n") == len(frames) + 1
+    bad = tmp_path / "bad.tum"
+    bad.write_text("1.0 2.0 3.0\n")
+    assert main(["regeotag", str(truth.flight.mcap), "--trajectory", str(bad), "--format", "tum",
+                 "--out", str(csv_out)]) == 1  # fmt: skip
+    assert f"{bad}:1: 3 columns" in capsys.readouterr().err

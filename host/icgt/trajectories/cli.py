@@ -149,7 +149,9 @@ def add_regeotag_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--geoid-separation", default="auto", help="N [m] for .pos ellipsoidal heights (auto: from GPS_RAW_INT)"
     )
-    parser.add_argument("--lever-arm", help="camera from the trajectory's point, body FRD X,Y,Z [m] (default: the log's)")
+    parser.add_argument(
+        "--lever-arm", help="camera from the trajectory's point, body FRD X,Y,Z [m] (default: the log's)"
+    )
     parser.add_argument("--position-error-m", type=float, default=0.05, help="TUM: the SLAM's own error bound [m]")
     parser.add_argument("--yaw-deg", type=float, default=0.0, help="TUM: yaw of the file's frame to ENU [deg]")
     parser.add_argument("--translation", help="TUM: the file's origin in the log's ENU E,N,U [m]")

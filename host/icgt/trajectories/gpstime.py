@@ -15,7 +15,13 @@ import math
 from icgt.clocks.autopilot_clock import GPS_EPOCH_UNIX_S, GPS_UTC_LEAP_S
 from icgt.errors import IcgtError
 
-__all__ = ["SECONDS_PER_WEEK", "gps_seconds_to_utc_s", "leap_seconds_at_utc", "utc_us_to_gps_week_tow_us", "week_tow_to_utc_s"]
+__all__ = [
+    "SECONDS_PER_WEEK",
+    "gps_seconds_to_utc_s",
+    "leap_seconds_at_utc",
+    "utc_us_to_gps_week_tow_us",
+    "week_tow_to_utc_s",
+]
 
 SECONDS_PER_WEEK = 604_800
 

@@ -50,8 +50,8 @@ from icgt.geotag.record import FrameFlag, FrameRecord
 from icgt.trajectories.gpstime import utc_us_to_gps_week_tow_us
 
 __all__ = [
-    "EVENTS_CSV",
     "EVENTS_COLUMNS",
+    "EVENTS_CSV",
     "MRK_FILE",
     "MrkLine",
     "PpkEventsResult",

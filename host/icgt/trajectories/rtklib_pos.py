@@ -219,7 +219,9 @@ def read_pos(
         if t_list and t <= t_list[-1]:
             raise TrajectoryError(f"{where}: time does not follow the previous line's: times must increase")
         t_list.append(t)
-        msl = h - options.geoid_separation_m if height == "ellipsoidal" and options.geoid_separation_m is not None else h
+        msl = (
+            h - options.geoid_separation_m if height == "ellipsoidal" and options.geoid_separation_m is not None else h
+        )
         llh.append((lat, lon, msl))
         sig.append(math.sqrt(sdn * sdn + sde * sde + sdu * sdu))
         qs.append(q)

@@ -205,9 +205,7 @@ class SampledTrajectory:
         t0, t1 = float(ts[k]), float(ts[k + 1])
         span = t1 - t0
         if span > self.max_gap_s:
-            return PoseMiss(
-                "gap", f"in a {span:.3f} s gap between samples (longer than the {self.max_gap_s} s limit)"
-            )
+            return PoseMiss("gap", f"in a {span:.3f} s gap between samples (longer than the {self.max_gap_s} s limit)")
         f = (t_s - t0) / span
         p0, p1 = self.enu_m[k], self.enu_m[k + 1]
         p = p0 + (p1 - p0) * f

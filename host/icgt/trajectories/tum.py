@@ -115,7 +115,9 @@ def _parse(path: Path) -> np.ndarray:
     return np.asarray(rows, dtype=np.float64)
 
 
-def read_tum(path: str | Path, origin: tuple[float, float, float], options: TumOptions = TumOptions()) -> SampledTrajectory:
+def read_tum(
+    path: str | Path, origin: tuple[float, float, float], options: TumOptions = TumOptions()
+) -> SampledTrajectory:
     """A TUM trajectory as a pose source in the recording's ENU frame at `origin` (lat, lon, MSL alt)."""
     p = Path(path)
     if options.position_error_m < 0.0 or not math.isfinite(options.position_error_m):
@@ -149,6 +151,4 @@ def read_tum(path: str | Path, origin: tuple[float, float, float], options: TumO
 
 def tum_line(t_s: float, p: np.ndarray, q_wxyz: np.ndarray) -> str:
     """One TUM line (timestamp with 9 decimals, metres with 6, quaternion scalar last with 9)."""
-    return (
-        f"{t_s:.9f} {p[0]:.6f} {p[1]:.6f} {p[2]:.6f} {q_wxyz[1]:.9f} {q_wxyz[2]:.9f} {q_wxyz[3]:.9f} {q_wxyz[0]:.9f}"
-    )
+    return f"{t_s:.9f} {p[0]:.6f} {p[1]:.6f} {p[2]:.6f} {q_wxyz[1]:.9f} {q_wxyz[2]:.9f} {q_wxyz[3]:.9f} {q_wxyz[0]:.9f}"

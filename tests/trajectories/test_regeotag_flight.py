@@ -258,3 +258,36 @@ def test_cli_regeotag_writes_and_reports(truth: Truth, tmp_path: Path, capsys: p
     assert main(["regeotag", str(truth.flight.mcap), "--trajectory", str(bad), "--format", "tum",
                  "--out", str(csv_out)]) == 1  # fmt: skip
     assert f"{bad}:1: 3 columns" in capsys.readouterr().err
+
+
+def test_recorded_telemetry_source_gives_back_the_recorded_frames(truth: Truth) -> None:
+    """The autopilot's telemetry behind the same interface: the lever arm and attitude rules match the geotagger's."""
+    from icgt.trajectories.recorded import RecordedTelemetry
+
+    rec = icgt.read(truth.flight.mcap)
+    config = RegeotagConfig.from_recording(rec)
+    frames = list(rec.frames())
+    source = RecordedTelemetry(config.origin, recording_config(rec).lever_arm_body_m)
+    result = regeotag_detailed(frames, source, config)
+    assert {seq for seq, m in result.unplaced if m.code == "no_fix"} == {
+        f.frame_seq for f in frames if f.lat_deg is None
+    }
+    compared = 0
+    for before, after in zip(frames, result.frames, strict=True):
+        if before.lat_deg is None or before.body_qw is None:
+            continue
+        compared += 1
+        assert after.position_source == before.position_source and after.flags == before.flags
+        assert after.position_error_bound_m == before.position_error_bound_m
+        d = truth.log_frame.geodetic_to_enu(
+            after.lat_deg, after.lon_deg, after.alt_msl_m
+        ) - truth.log_frame.geodetic_to_enu(before.lat_deg, before.lon_deg, before.alt_msl_m)
+        assert float(np.linalg.norm(d)) < 1e-6
+        assert np.allclose(
+            [after.cam_qw, after.cam_qx, after.cam_qy, after.cam_qz],
+            [before.cam_qw, before.cam_qx, before.cam_qy, before.cam_qz],
+            atol=1e-9,
+        )
+        if before.incidence_deg is not None:
+            assert after.incidence_deg == pytest.approx(before.incidence_deg, abs=1e-6)
+    assert compared >= 40

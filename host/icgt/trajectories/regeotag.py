@@ -104,6 +104,8 @@ def _place(frame: FrameRecord, fix: PoseFix, cfg: RegeotagConfig, local: LocalFr
         bound += arm * math.radians(cfg.recorded_attitude_error_deg)  # the borrowed attitude's error
     if bound > g.max_position_error_m:
         flags.add(FrameFlag.STALE_POSE.value)
+    if fix.extrapolated:
+        flags.add(FrameFlag.POSE_EXTRAPOLATED.value)
     la, lo, al = local.enu_to_geodetic(enu)
     changes: dict[str, Any] = {
         "lat_deg": float(la),

@@ -10,9 +10,10 @@ cannot (`PoseMiss`). It reads the frame's time on the clock it declares (`time_b
   keeps its inputs on] and its bound ``mid_host_uncertainty_ns``.
 
 The sources: the autopilot's telemetry, which the recorder's geotagger has already applied
-(`icgt.geotag`, ``position_source`` gps_3d/rtk_*/vio), and the external trajectories of this
-package: a TUM trajectory from SLAM/VIO (`icgt.trajectories.tum`) and an RTKLIB ``.pos`` PPK solution
-(`icgt.trajectories.rtklib_pos`), both built on `SampledTrajectory`.
+(`icgt.geotag`, ``position_source`` gps_3d/rtk_*/vio; `icgt.trajectories.recorded` hands it back
+through this interface), and the external trajectories of this package: a TUM trajectory from
+SLAM/VIO (`icgt.trajectories.tum`) and an RTKLIB ``.pos`` PPK solution (`icgt.trajectories.rtklib_pos`),
+both built on `SampledTrajectory`.
 
 Positions are given in the recording's ENU frame: east/north/up metres from the log's ENU origin
 (`Recording.enu_origin`: lat, lon, altitude above mean sea level), the frame the geotagger places
@@ -82,6 +83,8 @@ class PoseFix:
     """Frame time minus the earlier sample used [ms]."""
     gap_after_ms: float
     """The later sample used minus the frame time [ms]."""
+    extrapolated: bool = False
+    """Held or extrapolated past the last sample (the trajectories here never are; recorded poses can be)."""
 
     def geodetic(self) -> tuple[float, float, float]:
         """(lat [deg], lon [deg], altitude above MSL [m]) of the reference point."""

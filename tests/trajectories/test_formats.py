@@ -197,3 +197,34 @@ def test_mrk_reader_refuses_other_lines(tmp_path: Path) -> None:
     p.write_text(good.replace(",Lat", ",Lon") + "\n")
     with pytest.raises(PpkEventsError, match=r"Timestamp.MRK:1"):
         read_mrk(p)
+
+
+def test_tum_agrees_with_evo(tmp_path: Path) -> None:
+    """evo (the trajectory evaluation tool whose "tum" format SLAM systems write) as the oracle, both ways."""
+    from evo.core.trajectory import PoseTrajectory3D
+    from evo.tools import file_interface
+
+    from icgt.geodesy import Q_NED_TO_ENU, q_multiply, q_normalize
+    from icgt.trajectories.tum import tum_line
+
+    rng = np.random.default_rng(3)
+    n = 50
+    t = 1_796_164_404.0 + np.arange(n) * 0.05
+    p = rng.normal(size=(n, 3)) * 5.0
+    q = np.asarray(q_normalize(rng.normal(size=(n, 4))))
+    ours = tmp_path / "ours.tum"
+    ours.write_text(
+        "# timestamp tx ty tz qx qy qz qw\n" + "\n".join(tum_line(*row) for row in zip(t, p, q, strict=True))
+    )
+    back = file_interface.read_tum_trajectory_file(str(ours))
+    assert np.allclose(back.timestamps, t, atol=1e-6) and np.allclose(back.positions_xyz, p, atol=1e-6)
+    assert np.allclose(np.abs(np.sum(back.orientations_quat_wxyz * q, axis=1)), 1.0, atol=1e-9)
+    theirs = tmp_path / "theirs.tum"
+    traj = PoseTrajectory3D(positions_xyz=p, orientations_quat_wxyz=q, timestamps=t)
+    file_interface.write_tum_trajectory_file(str(theirs), traj)
+    got = read_tum(theirs, ORIGIN, TumOptions(body_axes="flu", max_gap_s=1.0))
+    assert np.allclose(got.t_s, t, atol=1e-6) and np.allclose(got.enu_m, p, atol=1e-6)
+    assert got.q_body_ned is not None
+    # undo the reader's FLU -> FRD and ENU -> NED to get the file's quaternion back
+    q_file = q_multiply(q_multiply(Q_NED_TO_ENU, got.q_body_ned), np.array([0.0, 1.0, 0.0, 0.0]))
+    assert np.allclose(np.abs(np.sum(q_file * q, axis=1)), 1.0, atol=1e-9)

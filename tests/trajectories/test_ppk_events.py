@@ -31,7 +31,7 @@ def test_ppk_export_reads_back_in_gps_time(truth: Truth, tmp_path: Path, capsys:
     with (out / EVENTS_CSV).open(newline="") as fh:
         rows = list(csv.DictReader(fh))
     with_utc = [f for f in frames.values() if f.mid_utc_us is not None]
-    assert len(rows) == len(with_utc) > 40
+    assert len(rows) == len(with_utc) >= 5
     for r in rows:
         f = frames[int(r["frame_seq"])]
         assert f.mid_utc_us is not None

@@ -296,3 +296,22 @@ def test_recorded_telemetry_source_gives_back_the_recorded_frames(truth: Truth) 
         if before.incidence_deg is not None:
             assert after.incidence_deg == pytest.approx(before.incidence_deg, abs=1e-6)
     assert compared >= 5
+
+
+def test_cli_regeotag_rtklib(truth: Truth, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from icgt.cli import main
+
+    tau = _grid(truth, 5.0)
+    _, llh, _, _ = truth.state_in_log(tau)
+    path = tmp_path / "rover.pos"
+    path.write_text(_pos_text(truth, tau, llh, [1] * len(tau), week_tow=True))
+    out = tmp_path / "frames.json"
+    args = ["regeotag", str(truth.flight.mcap), "--trajectory", str(path), "--format", "rtklib", "--out", str(out)]
+    assert main([*args, "--time-offset-s", str(-TIME_OFFSET_S), "--geoid-separation", str(truth.geoid_m)]) == 0
+    text = capsys.readouterr().out
+    frames = _frames(truth)
+    n = sum(1 for f in frames if f.mid_utc_us is not None)
+    assert "(GPST, week_tow times, ellipsoidal heights; Q1: " in text
+    assert f"placed {n} of {len(frames)} frames (ppk_fixed {n})" in text
+    assert main([*args, "--time-base", "host"]) == 1
+    assert "--time-base host does not apply" in capsys.readouterr().err

@@ -215,6 +215,12 @@ def build_parser() -> argparse.ArgumentParser:
     add_export_arguments(export)
     export.set_defaults(func=_cmd_export)
 
+    from icgt.trajectories.cli import add_regeotag_arguments, cmd_regeotag
+
+    regeo = sub.add_parser("regeotag", help="re-geotag a log's frames from a TUM (SLAM) or RTKLIB .pos (PPK) file")
+    add_regeotag_arguments(regeo)
+    regeo.set_defaults(func=cmd_regeotag)
+
     from icgt.report import add_info_arguments, add_report_arguments, cmd_info, cmd_report
 
     report = sub.add_parser("report", help="the flight report: one self-contained HTML page")

@@ -7,7 +7,8 @@
 Writes into --out: frames.csv, icgt.gpkg (GeoPackage: cameras, footprints, footprints on the face),
 cameras.geojson, footprints.geojson, icgt.kml (absolute MSL heights), geo.txt, exif_overrides.json,
 images/ (geotagged copies; the originals are only read), with ``ros2`` the ROS 2 bag ros2/ (not by
-default: it holds every sensor sample) and problems.csv (one row per input problem:
+default: it holds every sensor sample), with ``ppk`` the exposure events in GPS time for PPK tools
+(events_gpst.csv, Timestamp.MRK: `icgt.trajectories.ppk_events`) and problems.csv (one row per input problem:
 no fix, zero GPS, no UTC, an image without EXIF time or without an exposure, an exposure without an
 image, a damaged image, a camera GPS far from the log, HEIC files, RAW files without their JPEG;
 hidden and macOS AppleDouble ``._*`` files are skipped and listed as info rows). One bad image never
@@ -42,7 +43,7 @@ if TYPE_CHECKING:  # the heavy modules load when a command runs, not when the pa
 
 log = logging.getLogger(__name__)
 
-FORMATS = ("csv", "gpkg", "geojson", "kml", "odm", "opensfm", "jpeg", "ros2")
+FORMATS = ("csv", "gpkg", "geojson", "kml", "odm", "opensfm", "jpeg", "ros2", "ppk")
 DEFAULT_FORMATS = ("csv", "gpkg", "geojson", "kml", "odm", "opensfm", "jpeg")
 CSV_FILE = "frames.csv"
 PROBLEMS_FILE = "problems.csv"
@@ -294,11 +295,12 @@ def run_export(
     total = recording.topics().get("/frames")
     frames = list(tqdm(recording.frames(), desc="frames", unit="frame", total=total, disable=not progress))
     ros2_only = set(formats) <= {"ros2"}  # the bag needs neither frames nor a camera model
+    camera_free = set(formats) <= {"ros2", "ppk"}  # nor do the PPK event files need a camera model
     if not frames and not ros2_only:
         raise ExportError(f"{log_path}: the recording has no frames (/frames is empty)")
     metadata = recording.metadata
     camera = load_calibration(calibration) if calibration is not None else camera_from_metadata(metadata)
-    if camera is None and not ros2_only:
+    if camera is None and not camera_free:
         raise ExportError(f"{log_path}: no camera calibration in the recording: give --calibration FILE")
     normal = plane.normal if plane is not None else surface_normal_from_metadata(metadata)
     projector = (
@@ -335,6 +337,10 @@ def run_export(
 
         bag = write_ros2_bag(recording, out_dir)
         written["ros2 messages"] = bag.total
+    if "ppk" in wanted:
+        from icgt.trajectories.cli import export_ppk
+
+        written.update(export_ppk(recording, frames, out_dir, problems, geoid_separation_m=geoid))
     problems.write_csv(out_dir / PROBLEMS_FILE)
     return ExportResult(out_dir, written, problems, items)
 

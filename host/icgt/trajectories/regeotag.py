@@ -1,0 +1,188 @@
+"""Re-geotag a recording's frames from an external trajectory (PPK, SLAM) after the flight.
+
+Each frame's position (and attitude, when the source has one) is replaced from the source at the
+frame's mid-exposure, the way the geotagger places it live (`icgt.geotag.geotagger`):
+
+* camera position = reference point + R(body->NED) * lever arm, the lever arm in body FRD axes
+  (the recording's ``lever_arm_body_m`` unless the config gives another: from the GNSS antenna for
+  PPK, from the tracked point for SLAM), its NED components turned to ENU as (e, n, u) = (n_E, n_N, -n_D);
+* the attitude used for the lever arm is the source's when it has one, else the recorded one, whose
+  error turns the lever arm: ``|lever| * recorded_attitude_error_deg`` is added to the bound, the whole
+  ``|lever|`` when the recorded pose was held across a telemetry gap (``pose_extrapolated``: its
+  attitude is as old); with neither, the reference point is used and ``|lever|`` is added;
+* camera attitude = body attitude * the camera mounting (`camera_to_body_quaternion`), or only the
+  body's yaw for a stabilised gimbal; roll/pitch/yaw and the incidence on the structure follow.
+
+Set from the source: lat/lon/alt (MSL), east/north/up, ``position_source`` (the source's label:
+``ppk_fixed``, ``ppk_float``, ... or ``slam``), ``position_error_bound_m``, the pose gaps; flags
+``no_fix``, ``stale_pose`` (bound above ``max_position_error_m``) and ``pose_extrapolated`` are
+decided anew, ``no_attitude`` is cleared when the source supplies attitude. Everything else is kept
+(times, LiDAR, the GPS receiver's own fields fix_type/h_acc/v_acc/satellites, which describe the
+autopilot's receiver). A frame the source cannot place is kept exactly as recorded, and listed with
+the reason.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from icgt.geodesy import LocalFrame, q_from_euler_zyx, q_multiply, q_rotate, q_to_euler_zyx
+from icgt.geotag.geotagger import GeotagConfig, camera_to_body_quaternion
+from icgt.geotag.record import FrameFlag, FrameRecord
+from icgt.trajectories.source import PoseFix, PoseMiss, PoseSource, TrajectoryError
+
+__all__ = ["RegeotagConfig", "RegeotagResult", "regeotag", "regeotag_detailed"]
+
+_POSE_FLAGS = {FrameFlag.NO_FIX.value, FrameFlag.STALE_POSE.value, FrameFlag.POSE_EXTRAPOLATED.value}
+
+
+@dataclass(frozen=True)
+class RegeotagConfig:
+    """The recording's camera and mounting (its GeotagConfig), its ENU origin, and overrides."""
+
+    geotag: GeotagConfig
+    origin: tuple[float, float, float]
+    """The recording's ENU origin (lat [deg], lon [deg], alt MSL [m])."""
+    lever_arm_body_m: tuple[float, float, float] | None = None
+    """Camera from the source's reference point, body FRD [m]; None: the recording's lever arm."""
+    recorded_attitude_error_deg: float = 2.0
+    """Bound on the recorded attitude's error [deg] where a position-only source borrows it."""
+
+    @classmethod
+    def from_recording(cls, recording: Any, **overrides: Any) -> RegeotagConfig:
+        from icgt.ingest.recompute import recording_config
+
+        cfg = recording_config(recording)
+        origin = recording.enu_origin or cfg.origin
+        if origin is None:
+            raise TrajectoryError(f"{recording.path}: no ENU origin in the recording (no frame was ever placed)")
+        return cls(geotag=cfg, origin=origin, **overrides)
+
+    @property
+    def lever_arm(self) -> np.ndarray:
+        arm = self.lever_arm_body_m if self.lever_arm_body_m is not None else self.geotag.lever_arm_body_m
+        return np.asarray(arm, dtype=float)
+
+
+@dataclass
+class RegeotagResult:
+    frames: list[FrameRecord]
+    """Every input frame, in input order: placed ones replaced, the others as recorded."""
+    placed: list[int] = field(default_factory=list)
+    """frame_seq of the frames placed from the source."""
+    unplaced: list[tuple[int, PoseMiss]] = field(default_factory=list)
+    """(frame_seq, why) of the frames the source could not place."""
+    labels: dict[str, int] = field(default_factory=dict)
+    """Placed frames per position_source value."""
+
+
+def _recorded_attitude(frame: FrameRecord) -> np.ndarray | None:
+    if None in (frame.body_qw, frame.body_qx, frame.body_qy, frame.body_qz):
+        return None
+    return np.array([frame.body_qw, frame.body_qx, frame.body_qy, frame.body_qz], dtype=float)
+
+
+def _place(frame: FrameRecord, fix: PoseFix, cfg: RegeotagConfig, local: LocalFrame) -> FrameRecord:
+    g = cfg.geotag
+    body_q = fix.q_body_ned if fix.q_body_ned is not None else _recorded_attitude(frame)
+    flags = set(frame.flags) - _POSE_FLAGS
+    bound = fix.error_bound_m
+    enu = np.asarray(fix.enu_m, dtype=float)
+    arm = float(np.linalg.norm(cfg.lever_arm))
+    if body_q is not None:
+        lever_ned = q_rotate(body_q, cfg.lever_arm)
+        enu = enu + np.array([lever_ned[1], lever_ned[0], -lever_ned[2]])
+    if body_q is None or (fix.q_body_ned is None and FrameFlag.POSE_EXTRAPOLATED.value in frame.flags):
+        bound += arm  # no attitude, or one held from before a telemetry gap: the camera is on that sphere
+    elif fix.q_body_ned is None:
+        bound += arm * math.radians(cfg.recorded_attitude_error_deg)  # the borrowed attitude's error
+    if bound > g.max_position_error_m:
+        flags.add(FrameFlag.STALE_POSE.value)
+    if fix.extrapolated:
+        flags.add(FrameFlag.POSE_EXTRAPOLATED.value)
+    la, lo, al = local.enu_to_geodetic(enu)
+    changes: dict[str, Any] = {
+        "lat_deg": float(la),
+        "lon_deg": float(lo),
+        "alt_msl_m": float(al),
+        "east_m": float(enu[0]),
+        "north_m": float(enu[1]),
+        "up_m": float(enu[2]),
+        "position_source": fix.label,
+        "position_error_bound_m": bound,
+        "pose_gap_before_ms": fix.gap_before_ms,
+        "pose_gap_after_ms": fix.gap_after_ms,
+    }
+    if fix.q_body_ned is not None:
+        flags.discard(FrameFlag.NO_ATTITUDE.value)
+        changes.update(_attitude_fields(frame, fix.q_body_ned, g))
+    changes["flags"] = sorted(flags)
+    return dataclasses.replace(frame, **changes)
+
+
+def _attitude_fields(frame: FrameRecord, body_q: np.ndarray, g: GeotagConfig) -> dict[str, Any]:
+    carrier = body_q
+    if g.gimbal_stabilised:
+        _, _, yaw = q_to_euler_zyx(body_q)
+        carrier = q_from_euler_zyx(0.0, 0.0, float(yaw))
+    cam_q = np.asarray(q_multiply(carrier, camera_to_body_quaternion(g)), dtype=float)
+    r, p, y = (math.degrees(float(a)) for a in q_to_euler_zyx(body_q))
+    out: dict[str, Any] = {
+        "body_qw": float(body_q[0]),
+        "body_qx": float(body_q[1]),
+        "body_qy": float(body_q[2]),
+        "body_qz": float(body_q[3]),
+        "roll_deg": r,
+        "pitch_deg": p,
+        "yaw_deg": y % 360.0,
+        "cam_qw": float(cam_q[0]),
+        "cam_qx": float(cam_q[1]),
+        "cam_qy": float(cam_q[2]),
+        "cam_qz": float(cam_q[3]),
+    }
+    # Incidence and scale depend on the camera's attitude: the geotagger's rule (the optical axis,
+    # camera z, against the structure's normal; the scale grows by 1/cos along the tilt).
+    if frame.range_valid and frame.range_m is not None and g.surface_normal_enu is not None:
+        axis_ned = q_rotate(cam_q, np.array([0.0, 0.0, 1.0]))
+        axis_enu = np.array([axis_ned[1], axis_ned[0], -axis_ned[2]])
+        n = np.asarray(g.surface_normal_enu, dtype=float)
+        cosang = abs(float(axis_enu @ n)) / float(np.linalg.norm(n))
+        out["incidence_deg"] = math.degrees(math.acos(min(1.0, cosang)))
+        scale = frame.range_m * 1000.0 * g.pixel_pitch_mm / g.focal_length_mm
+        out["scale_mm_per_px"] = scale / max(cosang, 1e-3)
+    return out
+
+
+def regeotag_detailed(frames: Iterable[FrameRecord], source: PoseSource, config: RegeotagConfig) -> RegeotagResult:
+    """Re-geotag every frame from `source`; the result says which were placed and why the others were not."""
+    local = LocalFrame(*config.origin)
+    result = RegeotagResult(frames=[])
+    for frame in frames:
+        got = source.lookup(frame)
+        if isinstance(got, PoseMiss):
+            result.frames.append(frame)
+            result.unplaced.append((frame.frame_seq, got))
+            continue
+        result.frames.append(_place(frame, got, config, local))
+        result.placed.append(frame.frame_seq)
+        result.labels[got.label] = result.labels.get(got.label, 0) + 1
+    return result
+
+
+def regeotag(recording_or_frames: Any, source: PoseSource, config: RegeotagConfig | None = None) -> list[FrameRecord]:
+    """The frames of a recording (or a list of frames with `config`) re-geotagged from `source`."""
+    if isinstance(recording_or_frames, list | tuple):
+        if config is None:
+            raise TrajectoryError("regeotag: frames without a recording need a RegeotagConfig")
+        frames: Iterable[FrameRecord] = recording_or_frames
+    else:
+        frames = list(recording_or_frames.frames())
+        if config is None:
+            config = RegeotagConfig.from_recording(recording_or_frames)
+    return regeotag_detailed(frames, source, config).frames

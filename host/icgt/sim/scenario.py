@@ -4,7 +4,9 @@ A scenario is a TOML file (hil_sim/scenarios/*.toml) loaded into frozen dataclas
 field carries its unit in its name. Unknown keys, wrong types and out-of-range values raise
 `ScenarioError` naming the file and the dotted key. Frames: positions are ENU metres relative to
 `[origin]`; body and camera axes are FRD (x forward, y right, z down); the camera's x axis is its
-optical axis, image right is +y and image down is +z.
+optical axis, image right is +y and image down is +z. `[autopilot] profile` ("ideal", "ardupilot",
+"px4") chooses what the simulated autopilot sends and how it stamps it; it gives the defaults of the
+other `[autopilot]` keys (`Autopilot` below; sources in icgt.sim.profiles), which a scenario may set.
 
 Example (the shortest valid file; every other section has defaults)::
 

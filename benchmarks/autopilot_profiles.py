@@ -5,7 +5,7 @@
                                                       [--out bench-out/autopilot_profiles]
 
 For each profile (icgt.sim.profiles) x GLOBAL_POSITION_INT rate x TIMESYNC answered or not, one short
-deck pass at 10 m/s through the real links (icgt.demo.fly, 16 s, a frame every 100 ms), with the
+deck pass at 10 m/s through the real links (icgt.demo.fly, 18 s, a frame every 200 ms), with the
 profile's stamping and latencies, SET_MESSAGE_INTERVAL unanswered so the rate stays what the row says
 (LOCAL_POSITION_NED at the same rate, GPS_RAW_INT at min(rate, 10) Hz). Printed against the
 simulator's truth:
@@ -41,7 +41,7 @@ from icgt.sim.scenario import Scenario, parse_scenario
 
 BASE: dict[str, Any] = {
     "name": "bench_profile",
-    "duration_s": 16.0,
+    "duration_s": 18.0,
     "seed": 41,
     "origin": {
         "lat_deg": 37.8813,
@@ -65,8 +65,8 @@ BASE: dict[str, Any] = {
         "capture": {
             "mode": "interval",
             "start_s": 3.0,
-            "stop_s": 13.5,
-            "interval_ms": 100,
+            "stop_s": 15.5,
+            "interval_ms": 200,
         },
     },
     "gps": {"fix_type": 3},
@@ -152,7 +152,7 @@ def main() -> int:
                 print(row(r), flush=True)
     print()
     print(
-        "Geotag error of the camera position against truth, deck pass at 10 m/s, a frame every 100 ms;"
+        "Geotag error of the camera position against truth, deck pass at 10 m/s, a frame every 200 ms;"
     )
     print(
         f"timing part = autopilot-clock error at mid-exposure x true speed; peer = {PEER}, same flights."

@@ -139,9 +139,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--profiles", default="ideal,ardupilot,px4")
     parser.add_argument("--rates", default="2,5,10,50")
-    parser.add_argument(
-        "--out", type=Path, default=Path("bench-out/autopilot_profiles")
-    )
+    parser.add_argument("--out", type=Path, default=Path("bench-out/autopilot_profiles"))
     args = parser.parse_args()
     rows: list[dict[str, Any]] = []
     for profile in args.profiles.split(","):
@@ -151,12 +149,8 @@ def main() -> int:
                 rows.append(r)
                 print(row(r), flush=True)
     print()
-    print(
-        "Geotag error of the camera position against truth, deck pass at 10 m/s, a frame every 200 ms;"
-    )
-    print(
-        f"timing part = autopilot-clock error at mid-exposure x true speed; peer = {PEER}, same flights."
-    )
+    print("Geotag error of the camera position against truth, deck pass at 10 m/s, a frame every 200 ms;")
+    print(f"timing part = autopilot-clock error at mid-exposure x true speed; peer = {PEER}, same flights.")
     print(HEADER)
     for r in rows:
         print(row(r))

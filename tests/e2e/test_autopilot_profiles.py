@@ -18,6 +18,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from replay_check import assert_replay_reproduces_every_frame
+
 from icgt.demo import Flight, fly
 from icgt.ingest.reader import read
 from icgt.sim.evaluate import (
@@ -29,16 +31,11 @@ from icgt.sim.evaluate import (
     replayed_autopilot_times,
 )
 from icgt.sim.scenario import load_scenario
-from replay_check import assert_replay_reproduces_every_frame
 
 PROFILE_DIR = Path(__file__).with_name("profiles")
 CASES = ["ideal", "ardupilot", "ardupilot_no_timesync", "px4"]
-MAX_GPS_GAP_S = (
-    1.5  # the host's rule for interpolating between GPS samples (icgt.geotag.position)
-)
-CAPTURE_SETTLE_S = (
-    4.0  # frames before this scenario time may come before the clocks have data
-)
+MAX_GPS_GAP_S = 1.5  # the host's rule for interpolating between GPS samples (icgt.geotag.position)
+CAPTURE_SETTLE_S = 4.0  # frames before this scenario time may come before the clocks have data
 
 
 class Scored:
@@ -54,16 +51,9 @@ class Scored:
         by_start = {int(t["start_device_us"]): t for t in self.truth}
         self.tau = {fr["frame_seq"]: float(by_start[int(fr["start_device_us"])]["mid_tau_s"]) for fr in self.frames
                     if int(fr["start_device_us"]) in by_start}  # fmt: skip
-        self.settled = [
-            fr
-            for fr in self.frames
-            if self.tau.get(fr["frame_seq"], 0.0) >= CAPTURE_SETTLE_S
-        ]
+        self.settled = [fr for fr in self.frames if self.tau.get(fr["frame_seq"], 0.0) >= CAPTURE_SETTLE_S]
         print(
-            f"\n{self.sc.name}: "
-            + json.dumps(
-                {**self.poses, **self.timing, "geotag": self.result["geotag_error_cm"]}
-            )
+            f"\n{self.sc.name}: " + json.dumps({**self.poses, **self.timing, "geotag": self.result["geotag_error_cm"]})
         )
 
     @property
@@ -83,27 +73,19 @@ def flown(case: str, tmp_path_factory: pytest.TempPathFactory) -> Scored:
 
 
 @pytest.fixture(scope="module", params=CASES)
-def scored(
-    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
-) -> Scored:
+def scored(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Scored:
     return flown(str(request.param), tmp_path_factory)
 
 
 def _in_param_burst(scored: Scored, tau_s: float) -> bool:
     ap = scored.sc.autopilot
-    return any(
-        t <= tau_s < t + ap.param_burst_duration_s + 1.0 for t in ap.param_bursts_s
-    )
+    return any(t <= tau_s < t + ap.param_burst_duration_s + 1.0 for t in ap.param_bursts_s)
 
 
 def test_every_frame_with_a_fix_has_a_pose(scored: Scored) -> None:
     assert scored.result["exposures_missing_from_log"] == 0
     assert len(scored.settled) >= 30
-    without = [
-        (fr["frame_seq"], fr["flags"])
-        for fr in scored.settled
-        if fr.get("lat_deg") is None
-    ]
+    without = [(fr["frame_seq"], fr["flags"]) for fr in scored.settled if fr.get("lat_deg") is None]
     assert not without, (scored.poses, without[:5])
     assert all(fr["fix_type"] >= 3 for fr in scored.settled)
 
@@ -111,9 +93,7 @@ def test_every_frame_with_a_fix_has_a_pose(scored: Scored) -> None:
 def test_the_clock_method_is_recorded(scored: Scored) -> None:
     want = "timesync" if scored.timesync else "arrival"
     assert {fr["autopilot_clock"] for fr in scored.settled} == {want}, scored.poses
-    assert all(
-        fr["autopilot_clock_uncertainty_us"] is not None for fr in scored.settled
-    )
+    assert all(fr["autopilot_clock_uncertainty_us"] is not None for fr in scored.settled)
 
 
 def _gps_stamps_us(mcap: Path, system_id: int) -> list[int]:
@@ -125,19 +105,13 @@ def _gps_stamps_us(mcap: Path, system_id: int) -> list[int]:
     return sorted(out)
 
 
-def _vio_between_gps(
-    scored: Scored, *, in_bursts: bool
-) -> list[tuple[int, int, float, int]]:
+def _vio_between_gps(scored: Scored, *, in_bursts: bool) -> list[tuple[int, int, float, int]]:
     """Frames labelled vio although GPS samples at most MAX_GPS_GAP_S apart bracket their mid-exposure."""
     stamps = _gps_stamps_us(scored.flight.mcap, scored.sc.autopilot.system_id)
     assert len(stamps) > 20
     wrong = []
     for fr in scored.frames:
-        if (
-            fr["position_source"] != "vio"
-            or _in_param_burst(scored, scored.tau.get(fr["frame_seq"], 0.0))
-            != in_bursts
-        ):
+        if fr["position_source"] != "vio" or _in_param_burst(scored, scored.tau.get(fr["frame_seq"], 0.0)) != in_bursts:
             continue
         mid = scored.mapped.get(int(fr["mid_host_ns"]))
         assert mid is not None
@@ -152,9 +126,7 @@ def test_no_frame_labelled_vio_while_gps_samples_bracket_it(scored: Scored) -> N
     wrong = _vio_between_gps(scored, in_bursts=False)
     assert not wrong, wrong[:5]
     outside = {
-        fr["position_source"]
-        for fr in scored.settled
-        if not _in_param_burst(scored, scored.tau[fr["frame_seq"]])
+        fr["position_source"] for fr in scored.settled if not _in_param_burst(scored, scored.tau[fr["frame_seq"]])
     }
     assert outside == {"gps_3d"}, scored.poses
 
@@ -168,10 +140,7 @@ def test_no_frame_labelled_vio_during_a_parameter_download(
 ) -> None:
     """ArduPilot slows its 4 Hz streams to 1 Hz while sending parameters (tests/geotag/test_slow_gps_streams.py)."""
     scored = flown("ardupilot", tmp_path_factory)
-    assert (
-        scored.sc.autopilot.param_bursts_s
-        and scored.sc.autopilot.param_burst_stream_divisor == 4
-    )
+    assert scored.sc.autopilot.param_bursts_s and scored.sc.autopilot.param_burst_stream_divisor == 4
     wrong = _vio_between_gps(scored, in_bursts=True)
     assert not wrong, wrong[:5]
 
@@ -196,7 +165,7 @@ def test_recomputing_the_flight_reproduces_every_frame_exactly(scored: Scored) -
     assert_replay_reproduces_every_frame(scored.flight.mcap)
 
 
-@pytest.mark.xfail(strict=True, reason="host bug: a foreign camera at component 100 is counted as our own echo, silently")
+@pytest.mark.xfail(strict=True, reason="host bug: a foreign camera at component 100 is silently counted as a self-echo")
 def test_a_foreign_camera_at_component_100_is_logged_loudly(tmp_path_factory: pytest.TempPathFactory) -> None:
     """Issue 9: a second device at component 100 of the vehicle must be detected and said, not dropped as an echo."""
     scored = flown("ardupilot_no_timesync", tmp_path_factory)

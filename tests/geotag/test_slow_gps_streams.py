@@ -15,8 +15,9 @@ waits for it and is then placed by GPS between the two.
 from __future__ import annotations
 
 import pytest
-from icgt.geotag.geotagger import GeotagConfig
 from test_geotagger import MID_US, ORIGIN, Rig, host_ns
+
+from icgt.geotag.geotagger import GeotagConfig
 
 
 @pytest.mark.xfail(
@@ -24,17 +25,11 @@ from test_geotagger import MID_US, ORIGIN, Rig, host_ns
     reason="host bug: max_wait_ms (500 ms) is shorter than max_gps_gap_s (1.5 s)",
 )
 def test_a_frame_waits_for_the_later_gps_sample_of_a_1_hz_stream() -> None:
-    rig = Rig(
-        GeotagConfig(origin=ORIGIN)
-    )  # the recorder's defaults: max_wait 500 ms, max gap 1.5 s
+    rig = Rig(GeotagConfig(origin=ORIGIN))  # the recorder's defaults: max_wait 500 ms, max gap 1.5 s
     rig.gps(12_990)
-    rig.pose(
-        13_000
-    )  # mid-exposure is at 13045 ms; the next sample of the 1 Hz stream is due at 14000 ms
+    rig.pose(13_000)  # mid-exposure is at 13045 ms; the next sample of the 1 Hz stream is due at 14000 ms
     rig.expose()
-    assert (
-        rig.poll(host_ns(MID_US) + 700_000_000) == []
-    )  # 700 ms later: the 14000 ms sample is still due
+    assert rig.poll(host_ns(MID_US) + 700_000_000) == []  # 700 ms later: the 14000 ms sample is still due
     rig.gps(13_990)
     rig.pose(14_000)
     out = rig.poll(host_ns(MID_US) + 960_000_000)

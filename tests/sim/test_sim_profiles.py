@@ -7,6 +7,7 @@ test_sim_autopilot and reads its messages with pymavlink.
 from __future__ import annotations
 
 import copy
+import itertools
 from collections.abc import Iterator
 from typing import Any
 
@@ -110,7 +111,7 @@ def test_ardupilot_stamps_local_position_after_the_global_one(ardupilot: Rig) ->
     lpn_offsets = [t % grid for t in lpn]
     assert max(gpi_offsets) <= 3  # the 2.5 ms main-loop jitter, whole ms
     assert max(lpn_offsets) > 5 and max(lpn_offsets) <= 23  # up to 20 ms later as well
-    assert all(b > a for a, b in zip(lpn, lpn[1:], strict=False))
+    assert all(b > a for a, b in itertools.pairwise(lpn))
 
 
 def test_ardupilot_gps_raw_carries_the_receivers_last_fix(ardupilot: Rig) -> None:

@@ -209,11 +209,14 @@ def latest_pose_peer(scenario: Scenario, mcap_path: Path, truth: list[dict[str, 
 
 
 def pose_report(frames: list[dict[str, Any]]) -> dict[str, Any]:
-    """Frames without a position and why (their flags), the clock method and position source of each."""
+    """Frames without a position and why (their flags), frames with a pose-quality flag (stale_pose,
+    pose_extrapolated, no_fix, no_attitude, clock_unsynced), the clock method and position source of each."""
     without = [fr for fr in frames if fr.get("lat_deg") is None]
     reasons = Counter(",".join(sorted(set(fr.get("flags", [])) & _POSE_FLAGS)) or "unflagged" for fr in without)
+    flagged = [fr for fr in frames if set(fr.get("flags", [])) & _POSE_FLAGS]
     return {
         "frames_without_pose": len(without),
+        "frames_pose_flagged": len(flagged),
         "without_pose_reasons": dict(sorted(reasons.items())),
         "autopilot_clock": dict(sorted(Counter(str(fr.get("autopilot_clock")) for fr in frames).items())),
         "position_source": dict(sorted(Counter(str(fr.get("position_source")) for fr in frames).items())),

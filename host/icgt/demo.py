@@ -198,15 +198,23 @@ def fly(sc: Scenario, out_dir: Path) -> Flight:
     try:
         print(f"recorder: icgt record --device {urls.device} --mavlink {urls.mavlink}", flush=True)
         cap = sc.camera.capture
-        # Like QGroundControl: talk to the camera once its HEARTBEAT has been seen and it has answered
-        # CAMERA_INFORMATION (a second camera at component 100 that only sends HEARTBEATs is not ours).
+        # Like QGroundControl: talk to the camera once its HEARTBEAT has been seen. With a second camera at
+        # component 100 of the vehicle (scenario foreign_camera) a HEARTBEAT does not say which one is ours:
+        # then wait until ours has answered CAMERA_INFORMATION (the foreign one only sends HEARTBEATs).
         deadline = time.monotonic() + 15.0
-        while gcs.camera_info is None and time.monotonic() < deadline:
-            if gcs.camera_seen:
-                gcs.command(mavutil.mavlink.MAV_CMD_REQUEST_MESSAGE, mavutil.mavlink.MAVLINK_MSG_ID_CAMERA_INFORMATION)
-            gcs.pump(0.5)
-        if gcs.camera_info is None:
+        while not gcs.camera_seen and time.monotonic() < deadline:
+            gcs.pump(0.2)
+        if not gcs.camera_seen:
             raise IcgtError(f"the recorder's camera component never appeared; see {log_path}")
+        gcs.command(mavutil.mavlink.MAV_CMD_REQUEST_MESSAGE, mavutil.mavlink.MAVLINK_MSG_ID_CAMERA_INFORMATION)
+        next_request = time.monotonic() + 1.0
+        while sc.autopilot.foreign_camera and gcs.camera_info is None and time.monotonic() < deadline:
+            if time.monotonic() >= next_request:  # ask again if the answer was lost
+                gcs.command(mavutil.mavlink.MAV_CMD_REQUEST_MESSAGE, mavutil.mavlink.MAVLINK_MSG_ID_CAMERA_INFORMATION)
+                next_request = time.monotonic() + 1.0
+            gcs.pump(0.1)
+        if sc.autopilot.foreign_camera and gcs.camera_info is None:
+            raise IcgtError(f"the recorder's camera never answered CAMERA_INFORMATION; see {log_path}")
         gcs.pump(max(0.2, cap.start_s - session.tau_s))
         interval_s = cap.interval_ms / 1000.0 if cap.mode == "interval" else 1.0 / cap.burst_fps
         print(f"ground station: start capture at tau {session.tau_s:.1f} s", flush=True)

@@ -51,7 +51,7 @@ def recorder_config_text(sc: Scenario, out_dir: Path) -> str:
 set_rtc = true
 
 [mavlink]
-system_id = 1
+system_id = {sc.autopilot.system_id}
 ground_station_systems = [{GCS_SYSTEM}]
 global_position_hz = 50.0
 
@@ -88,8 +88,9 @@ chunk_interval_s = 1.0
 class GroundStation:
     """A minimal pymavlink ground station talking to the camera through the autopilot's routing."""
 
-    def __init__(self, url: str) -> None:
+    def __init__(self, url: str, target_system: int = 1) -> None:
         self.conn = mavutil.mavlink_connection(url, source_system=GCS_SYSTEM, source_component=GCS_COMPONENT)
+        self.target_system = target_system  # the vehicle's system id: the camera is its component 100
         self.acks: dict[int, int] = {}
         self.images: list[Any] = []
         self.image_rx_ns: list[int] = []  # host monotonic arrival of each CAMERA_IMAGE_CAPTURED
@@ -105,6 +106,8 @@ class GroundStation:
                 msg = self.conn.recv_match(blocking=True, timeout=0.1)
                 if msg is None or msg.get_srcComponent() != CAMERA_COMPONENT:
                     continue
+                if msg.get_srcSystem() != self.target_system:
+                    continue
                 kind = msg.get_type()
                 if kind == "HEARTBEAT":
                     self.camera_seen = True
@@ -118,7 +121,7 @@ class GroundStation:
 
     def command(self, command: int, *params: float) -> None:
         p = [*params, 0, 0, 0, 0, 0, 0, 0][:7]
-        self.conn.mav.command_long_send(1, CAMERA_COMPONENT, command, 0, *p)
+        self.conn.mav.command_long_send(self.target_system, CAMERA_COMPONENT, command, 0, *p)
 
     def command_acked(self, command: int, *params: float, attempts: int = 3) -> None:
         """Send a command and resend it after 1 s without a COMMAND_ACK, as ground stations do."""
@@ -189,19 +192,29 @@ def fly(sc: Scenario, out_dir: Path) -> Flight:
          "--mavlink", urls.mavlink, "--out", str(rec_dir), "--socket", str(out_dir / "recorder.sock")],
         stdout=recorder_log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )  # fmt: skip
-    gcs = GroundStation(urls.gcs)
+    gcs = GroundStation(urls.gcs, sc.autopilot.system_id)
     started = time.monotonic()
     cpu_s = wall_s = 0.0
     try:
         print(f"recorder: icgt record --device {urls.device} --mavlink {urls.mavlink}", flush=True)
         cap = sc.camera.capture
-        # Like QGroundControl: talk to the camera once its HEARTBEAT has been seen.
+        # Like QGroundControl: talk to the camera once its HEARTBEAT has been seen. With a second camera at
+        # component 100 of the vehicle (scenario foreign_camera) a HEARTBEAT does not say which one is ours:
+        # then wait until ours has answered CAMERA_INFORMATION (the foreign one only sends HEARTBEATs).
         deadline = time.monotonic() + 15.0
         while not gcs.camera_seen and time.monotonic() < deadline:
             gcs.pump(0.2)
         if not gcs.camera_seen:
             raise IcgtError(f"the recorder's camera component never appeared; see {log_path}")
         gcs.command(mavutil.mavlink.MAV_CMD_REQUEST_MESSAGE, mavutil.mavlink.MAVLINK_MSG_ID_CAMERA_INFORMATION)
+        next_request = time.monotonic() + 1.0
+        while sc.autopilot.foreign_camera and gcs.camera_info is None and time.monotonic() < deadline:
+            if time.monotonic() >= next_request:  # ask again if the answer was lost
+                gcs.command(mavutil.mavlink.MAV_CMD_REQUEST_MESSAGE, mavutil.mavlink.MAVLINK_MSG_ID_CAMERA_INFORMATION)
+                next_request = time.monotonic() + 1.0
+            gcs.pump(0.1)
+        if sc.autopilot.foreign_camera and gcs.camera_info is None:
+            raise IcgtError(f"the recorder's camera never answered CAMERA_INFORMATION; see {log_path}")
         gcs.pump(max(0.2, cap.start_s - session.tau_s))
         interval_s = cap.interval_ms / 1000.0 if cap.mode == "interval" else 1.0 / cap.burst_fps
         print(f"ground station: start capture at tau {session.tau_s:.1f} s", flush=True)

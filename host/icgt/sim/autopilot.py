@@ -1,25 +1,36 @@
-"""A simulated autopilot on a real MAVLink link: the scenario's truth as ArduPilot would report it.
+"""A simulated autopilot on a real MAVLink link: the scenario's truth as ArduPilot or PX4 would report it.
 
-`SimAutopilot` is system 1 component 1 (MAV_TYPE_QUADROTOR, MAV_AUTOPILOT_ARDUPILOTMEGA, armed).
-It keeps its own boot clock (truth.ClockMaps: autopilot boot us = offset + tau * 1e6 * (1 + drift))
-and streams, on a companion link and on an optional GCS link:
+`SimAutopilot` is component 1 of the scenario's vehicle system id (MAV_TYPE_QUADROTOR, armed,
+MAV_AUTOPILOT_ARDUPILOTMEGA or MAV_AUTOPILOT_PX4 by `[autopilot] firmware`). The scenario's
+`[autopilot] profile` (icgt.sim.profiles: "ideal", "ardupilot", "px4") sets what it streams and
+how it stamps; every knob is a field of `icgt.sim.scenario.Autopilot`. It keeps its own boot clock
+(truth.ClockMaps: autopilot boot us = offset + tau * 1e6 * (1 + drift)) and streams, on a companion
+link and on an optional GCS link:
 
-- HEARTBEAT (1 Hz), SYSTEM_TIME (1 Hz; time_unix_usec 0 until the first GPS fix),
-- GPS_RAW_INT (5 Hz; time_usec = boot time of the measurement; the scenario's noise, fix type,
-  outages with fix_type 1 and garbage lat/lon, nothing (or fix_type 0) while GPS-denied),
-- GLOBAL_POSITION_INT (10 Hz; the fused estimate at time_boot_ms: truth plus small noise, drifting
-  during outages, absent while GPS-denied, lat/lon 0 before the first fix),
-- ATTITUDE, ATTITUDE_QUATERNION, LOCAL_POSITION_NED (10 Hz; local position keeps going without GPS).
+- HEARTBEAT, SYSTEM_TIME (time_unix_usec 0 until the first GPS fix),
+- GPS_RAW_INT (time_usec = boot time of the measurement, or of the receiver's latest fix on a
+  `gps_fix_rate_hz` grid; the scenario's noise, fix type, outages with fix_type 1 and garbage lat/lon,
+  nothing (or fix_type 0) while GPS-denied),
+- GLOBAL_POSITION_INT (the fused estimate at time_boot_ms: truth plus small noise, drifting during
+  outages, absent while GPS-denied, lat/lon 0 before the first fix),
+- ATTITUDE, ATTITUDE_QUATERNION, LOCAL_POSITION_NED (local position keeps going without GPS, and
+  jumps at each EKF origin reset `origin_resets_s`), GPS_GLOBAL_ORIGIN (as a stream, or once when
+  the origin is set and at each reset with `origin_on_change`).
 
-Each estimate is stamped on a grid of its stream interval on the boot clock and leaves the
-autopilot `latency_ms` (+- jitter) after its stamp, paced against time.monotonic_ns and the
-contract's t0. It answers TIMESYNC (tc1 = boot time [ns] at microsecond granularity, as ArduPilot;
-ts1 echoed), COMMAND_LONG MAV_CMD_SET_MESSAGE_INTERVAL / GET_MESSAGE_INTERVAL / REQUEST_MESSAGE /
-REQUEST_AUTOPILOT_CAPABILITIES with COMMAND_ACK, and UNSUPPORTED for other commands addressed to
-it. Routing as ArduPilot does between its links: a message not addressed to (1, 1) alone
-(broadcasts, other components such as a camera at (1, 100), other systems) is forwarded unchanged
-to the other link. During the scenario's "autopilot link drops" the companion link sends nothing
-and ignores what arrives (the GCS link is unaffected).
+Each estimate is stamped on a grid of its stream interval on the boot clock (plus `stamp_jitter_ms`,
+and `local_position_lag_ms` for LOCAL_POSITION_NED) and leaves the autopilot `latency_ms` (+- jitter)
+after its stamp, paced against time.monotonic_ns and the contract's t0. It answers TIMESYNC (tc1 =
+boot time [ns] at microsecond granularity, as ArduPilot and PX4; ts1 echoed) unless
+`answer_timesync` is false, and may send its own requests (`own_timesync_hz`, as PX4); COMMAND_LONG
+MAV_CMD_SET_MESSAGE_INTERVAL (unless `honour_message_interval` is false: then no ACK) /
+GET_MESSAGE_INTERVAL / REQUEST_MESSAGE / REQUEST_AUTOPILOT_CAPABILITIES with COMMAND_ACK, and
+UNSUPPORTED for other commands addressed to it. Events: parameter downloads (`param_bursts_s`: a
+burst of PARAM_VALUE on both links, the streams slowed down meanwhile), HEARTBEATs of ground stations
+forwarded to the companion link (`gcs_heartbeat_systems`), a second camera at component 100 of the
+vehicle (`foreign_camera`). Routing as ArduPilot does between its links: a message not addressed to
+the autopilot alone (broadcasts, other components such as a camera at component 100, other systems)
+is forwarded unchanged to the other link. During the scenario's "autopilot link drops" the companion
+link sends nothing and ignores what arrives (the GCS link is unaffected).
 """
 
 from __future__ import annotations
@@ -55,6 +66,7 @@ STREAM_IDS: dict[str, int] = {
     "attitude_quaternion": mavlink2.MAVLINK_MSG_ID_ATTITUDE_QUATERNION,
     "local_position_ned": mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
     "system_time": mavlink2.MAVLINK_MSG_ID_SYSTEM_TIME,
+    "gps_global_origin": mavlink2.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN,
 }
 _US_STAMPED = {"gps_raw_int"}  # the others carry time_boot_ms (or no stamp)
 _BASE_MODE = (
@@ -65,7 +77,15 @@ _BASE_MODE = (
     | mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
 )
 _COPTER_MODE_LOITER = 5
-_FLIGHT_SW_VERSION = (4 << 24) | (5 << 16) | (0 << 8) | 255  # 4.5.0 official
+_PX4_MODE_POSCTL = 3 << 16  # PX4 custom_mode: main mode in bits 16-23 (3 = POSCTL)
+_FLIGHT_SW_VERSION = {
+    "ardupilot": (4 << 24) | (5 << 16) | (0 << 8) | 255,  # 4.5.0 official
+    "px4": (1 << 24) | (14 << 16) | (0 << 8) | 255,  # v1.14.0 release
+}
+GCS_COMPONENT = 190  # MAV_COMP_ID_MISSIONPLANNER: what QGroundControl, MAVProxy and MAVSDK ground stations use
+CAMERA_COMPONENT = 100  # MAV_COMP_ID_CAMERA
+_EVENT_PERIOD_S = 1.0  # HEARTBEATs of forwarded ground stations and of the foreign camera
+_BURST_CHUNK_S = 0.01  # a parameter burst goes out in chunks this far apart
 _UINT16_UNKNOWN = 65535
 _SELECT_TIMEOUT_S = 0.02
 _BUILD_LEAD_NS = 10_000_000  # messages are built this long before they are due
@@ -118,17 +138,17 @@ def _mavlink1_frame(msg: Any, mav: Any) -> bytes:
 class _Link:
     """One MAVLink connection: mavutil for the transport, a MAVLink 2 codec of our own."""
 
-    def __init__(self, url: str, name: str, baud: int) -> None:
+    def __init__(self, url: str, name: str, baud: int, system_id: int = SYSTEM_ID) -> None:
         self.url = url
         self.name = name
         try:
             self.conn: Any = mavutil.mavlink_connection(
-                url, baud=baud, source_system=SYSTEM_ID, source_component=COMPONENT_ID, autoreconnect=False
+                url, baud=baud, source_system=system_id, source_component=COMPONENT_ID, autoreconnect=False
             )
         except (OSError, ValueError) as exc:
             raise SimError(f"autopilot {name} link {url}: cannot open: {exc}") from exc
-        self.tx = mavlink2.MAVLink(self.conn, srcSystem=SYSTEM_ID, srcComponent=COMPONENT_ID)
-        self.rx = mavlink2.MAVLink(None, srcSystem=SYSTEM_ID, srcComponent=COMPONENT_ID)
+        self.tx = mavlink2.MAVLink(self.conn, srcSystem=system_id, srcComponent=COMPONENT_ID)
+        self.rx = mavlink2.MAVLink(None, srcSystem=system_id, srcComponent=COMPONENT_ID)
         self.rx.robust_parsing = True
         self.lock = threading.Lock()
 
@@ -151,6 +171,12 @@ class _Link:
                 return
             self.conn.write(_mavlink1_frame(msg, self.tx))
             self.tx.seq = (self.tx.seq + 1) % 256
+
+    def send_as(self, msg: Any, codec: Any) -> None:
+        """Send a message packed by another sender's codec (its own system/component and sequence)."""
+        with self.lock:
+            self.conn.write(bytes(msg.pack(codec)))
+            codec.seq = (codec.seq + 1) % 256
 
     def forward(self, raw: bytes) -> None:
         with self.lock:
@@ -206,7 +232,13 @@ class SimAutopilot:
         names = ap.mavlink1_messages if mavlink1_messages is None else tuple(mavlink1_messages)
         self.mavlink1_messages = frozenset(n.upper() for n in names)
         self.frame = LocalFrame(scenario.origin.lat_deg, scenario.origin.lon_deg, scenario.origin.ellipsoid_height_m)
-        self._codec = mavlink2.MAVLink(None, srcSystem=SYSTEM_ID, srcComponent=COMPONENT_ID)
+        self.system_id = ap.system_id
+        self._codec = mavlink2.MAVLink(None, srcSystem=self.system_id, srcComponent=COMPONENT_ID)
+        # other senders whose messages reach the companion link through this autopilot's routing
+        self._gcs_codecs = [
+            mavlink2.MAVLink(None, srcSystem=g, srcComponent=GCS_COMPONENT) for g in ap.gcs_heartbeat_systems
+        ]
+        self._camera_codec = mavlink2.MAVLink(None, srcSystem=self.system_id, srcComponent=CAMERA_COMPONENT)
         self._streams: dict[int, _Stream] = {}
         for name in STREAM_NAMES:
             rate = ap.rates_hz.get(name, 0.0)
@@ -216,6 +248,7 @@ class SimAutopilot:
         self._noise = {mid: np.random.default_rng([seed, 0xA9, mid]) for mid in self._streams}
         self._oneoff_rng = np.random.default_rng([seed, 0xA9, 0])
         self._jitter_rng = np.random.default_rng([seed, 0xA9, 1])
+        self._stamp_rng = np.random.default_rng([seed, 0xA9, 3])
         self._outage_dirs = [
             float(np.random.default_rng([seed, 0xA9, 2, i]).uniform(0.0, 2.0 * math.pi))
             for i in range(len(scenario.gps.outages_s))
@@ -228,6 +261,8 @@ class SimAutopilot:
         self._companion: _Link | None = None
         self._gcs: _Link | None = None
         self.sent_counts: dict[str, int] = {}
+        self.skipped_in_param_bursts = 0
+        """Stream messages not sent because a parameter burst slowed the streams down."""
         self.forwarded_counts: dict[str, int] = {"to_companion": 0, "to_gcs": 0}
         self.errors: list[str] = []
         """Unexpected exceptions caught in the worker threads (empty in a healthy run)."""
@@ -239,9 +274,9 @@ class SimAutopilot:
             raise SimError("autopilot already started")
         self._stop.clear()
         try:
-            self._companion = _Link(self.companion_url, "companion", self.baud)
+            self._companion = _Link(self.companion_url, "companion", self.baud, self.system_id)
             if self.gcs_url is not None:
-                self._gcs = _Link(self.gcs_url, "gcs", self.baud)
+                self._gcs = _Link(self.gcs_url, "gcs", self.baud, self.system_id)
         except SimError:
             self._close_links()
             raise
@@ -252,6 +287,7 @@ class SimAutopilot:
         self._threads = [
             threading.Thread(target=self._run_sender, name="sim-autopilot-tx", daemon=True),
             threading.Thread(target=self._run_receiver, name="sim-autopilot-rx", daemon=True),
+            threading.Thread(target=self._run_events, name="sim-autopilot-events", daemon=True),
         ]
         for t in self._threads:
             t.start()
@@ -312,8 +348,21 @@ class SimAutopilot:
             return s.k * s.interval_us
         return (s.k * s.interval_us // 1000) * 1000
 
+    def _stamp_offset_us(self, s: _Stream) -> int:
+        """Where in its grid interval a stamp falls: the main-loop jitter, plus LOCAL_POSITION_NED's lag."""
+        ap = self.scenario.autopilot
+        assert s.interval_us is not None
+        span_ms = ap.stamp_jitter_ms + (ap.local_position_lag_ms if s.name == "local_position_ned" else 0.0)
+        if span_ms <= 0.0:
+            return 0
+        limit_us = max(0, s.interval_us - 1000)  # stamps stay in order and one apart
+        return min(limit_us, round(float(self._stamp_rng.uniform(0.0, span_ms)) * 1000.0))
+
     def _schedule(self, s: _Stream) -> None:
         s.stamp_us = self._stamp(s)
+        offset_us = self._stamp_offset_us(s)
+        if offset_us:
+            s.stamp_us += offset_us if s.name in _US_STAMPED else (offset_us // 1000) * 1000
         tau = float(self.clocks.autopilot_us_to_tau(s.stamp_us))
         jitter = round(self._jitter_rng.uniform(-1.0, 1.0) * self.jitter_ns) if self.jitter_ns else 0
         s.send_ns = self.clocks.tau_to_host_ns(tau) + max(0, self.latency_ns + jitter)
@@ -349,9 +398,12 @@ class SimAutopilot:
                     if wait_ns > 0:
                         self._cond.wait(timeout=wait_ns * 1e-9)
                     continue
-                name, stamp_us, send_ns = nxt.name, nxt.stamp_us, nxt.send_ns
+                name, stamp_us, send_ns, k = nxt.name, nxt.stamp_us, nxt.send_ns, nxt.k
                 nxt.k += 1
                 self._schedule(nxt)
+            if self._slowed_by_param_burst(stamp_us, k):
+                self.skipped_in_param_bursts += 1
+                continue
             try:
                 msg = self._build(name, stamp_us, self._noise[STREAM_IDS[name]])
             except Exception as exc:  # keep streaming; the error is reported in self.errors
@@ -360,6 +412,14 @@ class SimAutopilot:
             if msg is not None:
                 heapq.heappush(pending, (send_ns, sequence, msg))
                 sequence += 1
+
+    def _slowed_by_param_burst(self, stamp_us: int, k: int) -> bool:
+        ap = self.scenario.autopilot
+        if ap.param_burst_stream_divisor <= 1 or not ap.param_bursts_s:
+            return False
+        tau = float(self.clocks.autopilot_us_to_tau(stamp_us))
+        in_burst = any(t <= tau < t + ap.param_burst_duration_s for t in ap.param_bursts_s)
+        return in_burst and k % ap.param_burst_stream_divisor != 0
 
     def _send_stream_message(self, msg: Any) -> None:
         """Send a telemetry message on every link (not the companion link while it is dropped)."""
@@ -410,10 +470,19 @@ class SimAutopilot:
             "attitude_quaternion": self._attitude_quaternion,
             "local_position_ned": self._local_position_ned,
             "system_time": self._system_time,
+            "gps_global_origin": self._gps_global_origin,
         }
         return builders[name](stamp_us, rng)
 
     def _heartbeat(self, _stamp_us: int, _rng: np.random.Generator) -> Any:
+        if self.scenario.autopilot.firmware == "px4":
+            return self._codec.heartbeat_encode(
+                mavlink2.MAV_TYPE_QUADROTOR,
+                mavlink2.MAV_AUTOPILOT_PX4,
+                _BASE_MODE,
+                _PX4_MODE_POSCTL,
+                mavlink2.MAV_STATE_ACTIVE,
+            )
         return self._codec.heartbeat_encode(
             mavlink2.MAV_TYPE_QUADROTOR,
             mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA,
@@ -422,6 +491,26 @@ class SimAutopilot:
             mavlink2.MAV_STATE_ACTIVE,
         )
 
+    # --- the EKF's local origin ---------------------------------------------------------------
+
+    def _origin_resets_before(self, tau: float) -> int:
+        return sum(1 for t in self.scenario.autopilot.origin_resets_s if t <= tau)
+
+    def _origin_shift_enu(self, tau: float) -> np.ndarray[Any, np.dtype[np.float64]]:
+        """How far the local origin has moved from the scenario origin by tau (ENU [m])."""
+        return np.asarray(self.scenario.autopilot.origin_reset_shift_m, dtype=float) * self._origin_resets_before(tau)
+
+    def _origin_message(self, stamp_us: int) -> Any:
+        tau = float(self.clocks.autopilot_us_to_tau(stamp_us))
+        lat, lon, alt, _ = self._geodetic(self._origin_shift_enu(tau))
+        return self._codec.gps_global_origin_encode(lat, lon, alt, stamp_us)
+
+    def _gps_global_origin(self, stamp_us: int, _rng: np.random.Generator) -> Any:
+        tau = float(self.clocks.autopilot_us_to_tau(stamp_us))
+        if tau < self.scenario.gps.fix_acquired_after_s:
+            return None  # the EKF has no origin before the first fix
+        return self._origin_message(stamp_us)
+
     def _system_time(self, stamp_us: int, _rng: np.random.Generator) -> Any:
         tau = float(self.clocks.autopilot_us_to_tau(stamp_us))
         unix_us = self.clocks.tau_to_utc_us(tau) if tau >= self.scenario.gps.fix_acquired_after_s else 0
@@ -429,6 +518,13 @@ class SimAutopilot:
 
     def _gps_raw_int(self, stamp_us: int, rng: np.random.Generator) -> Any:
         g = self.scenario.gps
+        fix_hz = self.scenario.autopilot.gps_fix_rate_hz
+        if fix_hz > 0.0:
+            # The receiver's latest fix at the send time; time_usec is its boot time in whole ms (ArduPilot).
+            fix_interval_us = round(1e6 / fix_hz)
+            fix = stamp_us // fix_interval_us
+            stamp_us = (fix * fix_interval_us // 1000) * 1000
+            rng = np.random.default_rng([self.scenario.seed, 0xA9, 4, fix])  # a fix sent twice is the same fix
         tau, st = self._state(stamp_us)
         cond = gps_condition(self.scenario, tau)
         noise = rng.normal(size=3)  # drawn every sample so the sequence does not depend on the condition
@@ -496,12 +592,13 @@ class SimAutopilot:
         return self._codec.global_position_int_encode(stamp_us // 1000, lat, lon, alt, rel_mm, vx, vy, vz, hdg)
 
     def _local_position_ned(self, stamp_us: int, rng: np.random.Generator) -> Any:
-        _, st = self._state(stamp_us)
+        _, st = self._state(stamp_us)  # relative to the EKF origin, which origin resets move
         g = self.scenario.gps
         noise = rng.normal(size=3) * np.array(
             [g.fused_noise_horizontal_m, g.fused_noise_horizontal_m, g.fused_noise_vertical_m]
         )
-        p = enu_to_ned(st.position_enu_m[0] + noise)
+        tau = float(self.clocks.autopilot_us_to_tau(stamp_us))
+        p = enu_to_ned(st.position_enu_m[0] + noise - self._origin_shift_enu(tau))
         v = enu_to_ned(st.velocity_enu_m_s[0])
         return self._codec.local_position_ned_encode(
             stamp_us // 1000, float(p[0]), float(p[1]), float(p[2]), float(v[0]), float(v[1]), float(v[2])
@@ -529,8 +626,9 @@ class SimAutopilot:
             | mavlink2.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
             | mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_INT
         )
+        firmware = self.scenario.autopilot.firmware
         return self._codec.autopilot_version_encode(
-            caps, _FLIGHT_SW_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 0x1C67
+            caps, _FLIGHT_SW_VERSION[firmware], 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 0x1C67
         )
 
     # --- receiving, commands and routing ------------------------------------------------------
@@ -557,12 +655,12 @@ class SimAutopilot:
         if link is self._companion and self._companion_dropped(self._tau_now()):
             return
         src = (msg.get_srcSystem(), msg.get_srcComponent())
-        if src == (SYSTEM_ID, COMPONENT_ID):
+        if src == (self.system_id, COMPONENT_ID):
             return  # our own frames echoed back by a loop
         tgt_sys = int(getattr(msg, "target_system", 0))
         tgt_comp = int(getattr(msg, "target_component", 0))
         other = self._gcs if link is self._companion else self._companion
-        addressed_to_me_only = tgt_sys == SYSTEM_ID and tgt_comp == COMPONENT_ID
+        addressed_to_me_only = tgt_sys == self.system_id and tgt_comp == COMPONENT_ID
         to_companion = other is self._companion
         if (
             other is not None
@@ -571,7 +669,7 @@ class SimAutopilot:
         ):
             other.forward(bytes(msg.get_msgbuf()))
             self.forwarded_counts["to_companion" if to_companion else "to_gcs"] += 1
-        for_me = tgt_sys in (0, SYSTEM_ID) and tgt_comp in (0, COMPONENT_ID)
+        for_me = tgt_sys in (0, self.system_id) and tgt_comp in (0, COMPONENT_ID)
         if not for_me:
             return
         mtype = msg.get_type()
@@ -640,3 +738,101 @@ class SimAutopilot:
             return
         self._ack(link, msg, mavlink2.MAV_RESULT_ACCEPTED)
         link.send(built, mavlink1=built.get_type() in self.mavlink1_messages)
+
+    # --- events: forwarded ground stations, a foreign camera, origin messages, parameter bursts ---
+
+    def _event_plan(self) -> list[tuple[float, int, str, int]]:
+        """The one-off and first periodic events as (tau, sequence, kind, argument)."""
+        ap = self.scenario.autopilot
+        start = max(0.0, self._tau_now())
+        plan: list[tuple[float, str, int]] = []
+        if ap.gcs_heartbeat_systems:
+            plan.append((start, "gcs_heartbeats", 0))
+        if ap.foreign_camera:
+            plan.append((start, "camera_heartbeat", 0))
+        if ap.own_timesync_hz > 0.0:
+            plan.append((start, "own_timesync", 0))
+        if ap.origin_on_change:
+            plan.append((max(start, self.scenario.gps.fix_acquired_after_s), "origin", 0))
+            plan += [(t, "origin", 0) for t in ap.origin_resets_s if t > self.scenario.gps.fix_acquired_after_s]
+        for t in ap.param_bursts_s:
+            n_chunks = max(1, math.ceil(ap.param_burst_duration_s / _BURST_CHUNK_S))
+            per_chunk = -(-ap.param_burst_count // n_chunks)
+            for c in range(n_chunks):
+                first = c * per_chunk
+                if first < ap.param_burst_count:
+                    plan.append((t + c * _BURST_CHUNK_S, "params", first))
+        return [(tau, i, kind, arg) for i, (tau, kind, arg) in enumerate(plan)]
+
+    def _run_events(self) -> None:
+        heap = self._event_plan()
+        heapq.heapify(heap)
+        sequence = len(heap)
+        while heap and not self._stop.is_set():
+            tau, _, kind, arg = heap[0]
+            wait_s = tau - self._tau_now()
+            if wait_s > 0.0:
+                self._stop.wait(min(wait_s, 0.1))
+                continue
+            heapq.heappop(heap)
+            try:
+                again = self._event(kind, arg)
+            except Exception as exc:  # keep going; the error is reported in self.errors
+                self.errors.append(f"event {kind}: {exc!r}")
+                again = None
+            if again is not None:
+                heapq.heappush(heap, (tau + again, sequence, kind, arg))
+                sequence += 1
+
+    def _links_now(self, *, companion_only: bool = False) -> list[_Link]:
+        out: list[_Link] = []
+        if self._companion is not None and not self._companion_dropped(self._tau_now()):
+            out.append(self._companion)
+        if self._gcs is not None and not companion_only:
+            out.append(self._gcs)
+        return out
+
+    def _event(self, kind: str, arg: int) -> float | None:
+        """Do one event; returns the period after which it repeats (None: once)."""
+        ap = self.scenario.autopilot
+        if kind == "gcs_heartbeats":
+            # what the autopilot forwards from its GCS links: each ground station's HEARTBEAT
+            for codec in self._gcs_codecs:
+                hb = codec.heartbeat_encode(mavlink2.MAV_TYPE_GCS, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+                for link in self._links_now(companion_only=True):
+                    link.send_as(hb, codec)
+            return _EVENT_PERIOD_S
+        if kind == "camera_heartbeat":
+            c = self._camera_codec
+            hb = c.heartbeat_encode(
+                mavlink2.MAV_TYPE_CAMERA, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, mavlink2.MAV_STATE_ACTIVE
+            )
+            for link in self._links_now():
+                link.send_as(hb, c)
+            return _EVENT_PERIOD_S
+        if kind == "own_timesync":
+            if self._companion is not None and not self._companion_dropped(self._tau_now()):
+                self._companion.send(self._codec.timesync_encode(0, self._ap_now_us() * 1000))
+            return 1.0 / ap.own_timesync_hz
+        if kind == "origin":
+            msg = self._origin_message(self._ap_now_us())
+            for link in self._links_now():
+                link.send(msg)
+            self.sent_counts["GPS_GLOBAL_ORIGIN"] = self.sent_counts.get("GPS_GLOBAL_ORIGIN", 0) + 1
+            return None
+        if kind == "params":
+            n_chunks = max(1, math.ceil(ap.param_burst_duration_s / _BURST_CHUNK_S))
+            per_chunk = -(-ap.param_burst_count // n_chunks)
+            for index in range(arg, min(arg + per_chunk, ap.param_burst_count)):
+                msg = self._codec.param_value_encode(
+                    f"SIM_P{index:05d}".encode(),
+                    float(index),
+                    mavlink2.MAV_PARAM_TYPE_REAL32,
+                    ap.param_burst_count,
+                    index,
+                )
+                for link in self._links_now():
+                    link.send(msg)
+                self.sent_counts["PARAM_VALUE"] = self.sent_counts.get("PARAM_VALUE", 0) + 1
+            return None
+        raise SimError(f"unknown autopilot event {kind!r}")

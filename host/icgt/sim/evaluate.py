@@ -117,3 +117,107 @@ def evaluate(scenario: Scenario, frames: list[dict[str, Any]], truth: list[dict[
         "utc_error_ms": Percentiles.of(utc_err_ms).as_dict(),
         "flags": dict(sorted(flags.items())),
     }
+
+
+# --- the autopilot clock's part of the error, and the reasons frames have no pose ---------------
+
+
+def replayed_autopilot_times(mcap_path: Path) -> dict[int, float]:
+    """For each frame's mid_host_ns, the autopilot boot time [us] the geotagger put it at.
+
+    The frame record does not carry that instant, so the log is recomputed (`icgt.ingest.recompute`,
+    which reproduces every frame exactly: tests/replay_check.py) while watching the geotagger's
+    question to the autopilot clock. A frame asks at each poll until it is built; the last answer
+    per instant is the one its pose was taken at.
+    """
+    from unittest import mock
+
+    from icgt.geotag import clock_views
+    from icgt.ingest.recompute import recompute
+
+    seen: dict[int, float] = {}
+    original = clock_views.AutopilotClockView.host_to_autopilot_us
+
+    def spy(view: clock_views.AutopilotClockView, host_ns: int) -> float | None:
+        value = original(view, host_ns)
+        if value is not None:
+            seen[int(host_ns)] = float(value)
+        return value
+
+    with mock.patch.object(clock_views.AutopilotClockView, "host_to_autopilot_us", spy):
+        recompute(mcap_path)
+    return seen
+
+
+def _speed_at(traj: Trajectory, tau_s: float) -> float:
+    return float(np.linalg.norm(traj.state(np.array([tau_s])).velocity_enu_m_s[0]))
+
+
+def autopilot_timing(
+    scenario: Scenario, frames: list[dict[str, Any]], truth: list[dict[str, Any]], mapped: dict[int, float]
+) -> dict[str, Any]:
+    """Error of mid-exposure on the autopilot's clock (device -> host -> autopilot, all of it) per frame.
+
+    ``mapped`` is `replayed_autopilot_times`. The true instant is the autopilot boot time at the true
+    mid-exposure (the scenario's autopilot clock). The timing part of the geotag error is that error
+    times the true speed.
+    """
+    from icgt.sim.truth import ClockMaps
+
+    clocks = ClockMaps.from_scenario(scenario, 0, 0)  # the autopilot clock does not depend on t0 or utc0
+    by_start = {int(t["start_device_us"]): t for t in truth}
+    traj = Trajectory(scenario)
+    err_ms: list[float] = []
+    part_cm: list[float] = []
+    for fr in frames:
+        t = by_start.get(int(fr["start_device_us"]))
+        got = mapped.get(int(fr["mid_host_ns"]))
+        if t is None or got is None:
+            continue
+        want = float(clocks.tau_to_autopilot_us(float(t["mid_tau_s"])))
+        err_ms.append((got - want) / 1000.0)
+        part_cm.append(abs(got - want) * 1e-6 * _speed_at(traj, float(t["mid_tau_s"])) * 100.0)
+    return {
+        "autopilot_time_error_ms": Percentiles.of(err_ms).as_dict(),
+        "timing_part_cm": Percentiles.of(part_cm).as_dict(),
+    }
+
+
+def latest_pose_peer(scenario: Scenario, mcap_path: Path, truth: list[dict[str, Any]]) -> dict[str, float | int]:
+    """What PX4 / ArduPilot do (copy the latest estimate when the camera fires), measured on this log.
+
+    For each true exposure: the age of the latest GLOBAL_POSITION_INT that had arrived here by the true
+    mid-exposure, less the ~2 ms it took to arrive (the peer is given those), times the true speed [cm]
+    (as benchmarks/recorder_flight.py).
+    """
+    from mcap.reader import make_reader
+
+    rx: list[int] = []
+    with mcap_path.open("rb") as f:
+        for _, _, m in make_reader(f).iter_messages(topics=["/mavlink/global_position_int"]):
+            rx.append(int(json.loads(m.data)["host_rx_ns"]))
+    rx.sort()
+    traj = Trajectory(scenario)
+    out: list[float] = []
+    for t in truth:
+        mid = int(t["mid_host_monotonic_ns"])
+        i = int(np.searchsorted(rx, mid)) - 1
+        if i >= 0:
+            stale_ns = max(0, mid - rx[i] - 2_000_000)
+            out.append(stale_ns * 1e-9 * _speed_at(traj, float(t["mid_tau_s"])) * 100.0)
+    return Percentiles.of(out).as_dict()
+
+
+def pose_report(frames: list[dict[str, Any]]) -> dict[str, Any]:
+    """Frames without a position and why (their flags), frames with a pose-quality flag (stale_pose,
+    pose_extrapolated, no_fix, no_attitude, clock_unsynced), the clock method and position source of each."""
+    without = [fr for fr in frames if fr.get("lat_deg") is None]
+    reasons = Counter(",".join(sorted(set(fr.get("flags", [])) & _POSE_FLAGS)) or "unflagged" for fr in without)
+    flagged = [fr for fr in frames if set(fr.get("flags", [])) & _POSE_FLAGS]
+    return {
+        "frames_without_pose": len(without),
+        "frames_pose_flagged": len(flagged),
+        "without_pose_reasons": dict(sorted(reasons.items())),
+        "autopilot_clock": dict(sorted(Counter(str(fr.get("autopilot_clock")) for fr in frames).items())),
+        "position_source": dict(sorted(Counter(str(fr.get("position_source")) for fr in frames).items())),
+    }

@@ -4,7 +4,9 @@ A scenario is a TOML file (hil_sim/scenarios/*.toml) loaded into frozen dataclas
 field carries its unit in its name. Unknown keys, wrong types and out-of-range values raise
 `ScenarioError` naming the file and the dotted key. Frames: positions are ENU metres relative to
 `[origin]`; body and camera axes are FRD (x forward, y right, z down); the camera's x axis is its
-optical axis, image right is +y and image down is +z.
+optical axis, image right is +y and image down is +z. `[autopilot] profile` ("ideal", "ardupilot",
+"px4") chooses what the simulated autopilot sends and how it stamps it; it gives the defaults of the
+other `[autopilot]` keys (`Autopilot` below; sources in icgt.sim.profiles), which a scenario may set.
 
 Example (the shortest valid file; every other section has defaults)::
 
@@ -31,6 +33,7 @@ from pathlib import Path
 from typing import Any, Literal, NoReturn, TypeAlias
 
 from icgt.errors import IcgtError
+from icgt.sim.profiles import IDEAL_RATES_HZ, PROFILE_NAMES, PROFILES
 
 Vec3: TypeAlias = tuple[float, float, float]
 Window: TypeAlias = tuple[float, float]
@@ -50,17 +53,11 @@ STREAM_NAMES = (
     "attitude_quaternion",
     "local_position_ned",
     "system_time",
+    "gps_global_origin",
 )
 """Telemetry streams of the simulated autopilot, by lower-case MAVLink message name."""
-DEFAULT_RATES_HZ: Mapping[str, float] = {
-    "heartbeat": 1.0,
-    "gps_raw_int": 5.0,
-    "global_position_int": 10.0,
-    "attitude": 10.0,
-    "attitude_quaternion": 10.0,
-    "local_position_ned": 10.0,
-    "system_time": 1.0,
-}
+DEFAULT_RATES_HZ: Mapping[str, float] = IDEAL_RATES_HZ
+"""Stream rates of the "ideal" profile (the default); see icgt.sim.profiles for the others."""
 
 
 class SimError(IcgtError):
@@ -269,6 +266,10 @@ class Gps:
 
 @dataclass(frozen=True, kw_only=True)
 class Autopilot:
+    """The simulated autopilot. `profile` sets the defaults of every other key (icgt.sim.profiles
+    says what each profile does and where the numbers come from); a scenario may override any."""
+
+    profile: Literal["ideal", "ardupilot", "px4"] = "ideal"
     rates_hz: Mapping[str, float] = field(default_factory=lambda: dict(DEFAULT_RATES_HZ))
     """Stream rates by lower-case message name (see STREAM_NAMES); 0 disables a stream."""
     latency_ms: float = 2.0
@@ -280,6 +281,38 @@ class Autopilot:
     """False: TIMESYNC requests are never answered (a radio or router that drops them, older firmware)."""
     honour_message_interval: bool = True
     """False: SET_MESSAGE_INTERVAL gets no COMMAND_ACK and the default rates stay (seen behind some routers)."""
+    firmware: Literal["ardupilot", "px4"] = "ardupilot"
+    """What the HEARTBEAT says (MAV_AUTOPILOT_ARDUPILOTMEGA or MAV_AUTOPILOT_PX4) and AUTOPILOT_VERSION."""
+    system_id: int = 1
+    """The vehicle's MAVLink system id (the autopilot is its component 1)."""
+    stamp_jitter_ms: float = 0.0
+    """Each stamp lands uniformly in [grid, grid + this) (ArduPilot stamps at send time in its main loop)."""
+    local_position_lag_ms: float = 0.0
+    """LOCAL_POSITION_NED is stamped (and written) up to this much after GLOBAL_POSITION_INT's grid point."""
+    gps_fix_rate_hz: float = 0.0
+    """> 0: GPS_RAW_INT carries the receiver's latest fix on this grid (time_usec = its boot time, whole ms,
+    as ArduPilot); 0: each GPS_RAW_INT is its own sample at its own stamp."""
+    own_timesync_hz: float = 0.0
+    """Rate of the autopilot's own TIMESYNC requests (tc1 = 0, ts1 = its boot time [ns]); PX4 sends 10 Hz."""
+    origin_on_change: bool = False
+    """Send GPS_GLOBAL_ORIGIN when the EKF origin is first set (first fix) and at each origin reset."""
+    origin_resets_s: tuple[float, ...] = ()
+    """Scenario times of EKF local-origin resets: LOCAL_POSITION_NED jumps by -origin_reset_shift_m."""
+    origin_reset_shift_m: Vec3 = (300.0, 380.0, 0.0)
+    """How far the local origin moves at each reset, ENU [m] (cumulative; 484 m as in issue 9's log)."""
+    param_bursts_s: tuple[float, ...] = ()
+    """Scenario times of parameter downloads: a burst of PARAM_VALUE on both links."""
+    param_burst_count: int = 1000
+    """PARAM_VALUE messages per burst (ArduCopter 4.x has about a thousand parameters)."""
+    param_burst_duration_s: float = 1.0
+    """Time the burst is spread over [s]."""
+    param_burst_stream_divisor: int = 1
+    """During a burst only every n-th message of each stream is sent (ArduPilot: 4)."""
+    gcs_heartbeat_systems: tuple[int, ...] = ()
+    """System ids of ground stations whose HEARTBEATs (1 Hz, MAV_TYPE_GCS, component 190) the autopilot
+    forwards to the companion link: 245 MAVSDK, 250, 255 QGroundControl / MAVProxy / Mission Planner."""
+    foreign_camera: bool = False
+    """A second camera at component 100 of the vehicle (HEARTBEAT 1 Hz, MAV_TYPE_CAMERA) on both links."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -627,8 +660,10 @@ def _read_gps(r: _Reader) -> Gps:
 
 
 def _read_autopilot(r: _Reader) -> Autopilot:
+    profile = r.string("profile", "ideal", choices=PROFILE_NAMES)
+    base = PROFILES[profile]
     rt = r.table("rates_hz")
-    rates = dict(DEFAULT_RATES_HZ)
+    rates = dict(base["rates_hz"])
     for name in STREAM_NAMES:
         if rt.has(name):
             rates[name] = rt.number(name, min_value=0.0, max_value=1000.0)
@@ -637,13 +672,37 @@ def _read_autopilot(r: _Reader) -> Autopilot:
     for n in names:
         if n.lower() not in STREAM_NAMES:
             r.fail("mavlink1_messages", f"{n!r} is not one of {', '.join(s.upper() for s in STREAM_NAMES)}")
+    gcs = r.integers("gcs_heartbeat_systems", min_value=1)
+    for i, sysid in enumerate(gcs):
+        if sysid > 255:
+            r.fail(f"gcs_heartbeat_systems[{i}]", f"must be <= 255, got {sysid}")
     ap = Autopilot(
+        profile=profile,  # type: ignore[arg-type]
         rates_hz=rates,
-        latency_ms=r.number("latency_ms", 2.0, min_value=0.0, max_value=1000.0),
-        latency_jitter_ms=r.number("latency_jitter_ms", 0.5, min_value=0.0, max_value=1000.0),
+        latency_ms=r.number("latency_ms", base["latency_ms"], min_value=0.0, max_value=1000.0),
+        latency_jitter_ms=r.number("latency_jitter_ms", base["latency_jitter_ms"], min_value=0.0, max_value=1000.0),
         mavlink1_messages=tuple(n.upper() for n in names),
-        answer_timesync=r.boolean("answer_timesync", True),
-        honour_message_interval=r.boolean("honour_message_interval", True),
+        answer_timesync=r.boolean("answer_timesync", base["answer_timesync"]),
+        honour_message_interval=r.boolean("honour_message_interval", base["honour_message_interval"]),
+        firmware=r.string("firmware", base["firmware"], choices=("ardupilot", "px4")),  # type: ignore[arg-type]
+        system_id=r.integer("system_id", 1, min_value=1, max_value=255),
+        stamp_jitter_ms=r.number("stamp_jitter_ms", base["stamp_jitter_ms"], min_value=0.0, max_value=20.0),
+        local_position_lag_ms=r.number(
+            "local_position_lag_ms", base["local_position_lag_ms"], min_value=0.0, max_value=100.0
+        ),
+        gps_fix_rate_hz=r.number("gps_fix_rate_hz", base["gps_fix_rate_hz"], min_value=0.0, max_value=100.0),
+        own_timesync_hz=r.number("own_timesync_hz", base["own_timesync_hz"], min_value=0.0, max_value=100.0),
+        origin_on_change=r.boolean("origin_on_change", base["origin_on_change"]),
+        origin_resets_s=r.numbers("origin_resets_s", min_value=0.0),
+        origin_reset_shift_m=r.vec3("origin_reset_shift_m", (300.0, 380.0, 0.0)),
+        param_bursts_s=r.numbers("param_bursts_s", min_value=0.0),
+        param_burst_count=r.integer("param_burst_count", 1000, min_value=1, max_value=100_000),
+        param_burst_duration_s=r.number("param_burst_duration_s", 1.0, positive=True, max_value=600.0),
+        param_burst_stream_divisor=r.integer(
+            "param_burst_stream_divisor", base["param_burst_stream_divisor"], min_value=1, max_value=100
+        ),
+        gcs_heartbeat_systems=gcs,
+        foreign_camera=r.boolean("foreign_camera", False),
     )
     r.finish()
     return ap

@@ -1,0 +1,60 @@
+"""UDP arrival stamps must be the datagram's arrival, not the moment a busy reader got to it (host bug, issue 9).
+
+Found with the simulator's autopilot profiles (benchmarks/autopilot_profiles.py, profile ideal, 50 Hz,
+TIMESYNC never answered): on the shared machine the recorder read its UDP socket up to 1.7 s behind,
+stamped every datagram with the read time, and the one-way (arrival) autopilot clock, fed those stamps,
+mapped mid-exposure 1.5 s wrong (15 m at 10 m/s) while each frame claimed +-3 ms. Any reader falls
+behind sometimes (start-up, CPU load, a parameter download); the kernel knows when each datagram came
+(SO_TIMESTAMPNS on Linux). Here a subscriber that takes 300 ms stands in for a descheduled reader.
+Right behaviour: the datagram sent meanwhile is stamped within a few ms of when it was sent.
+"""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from icgt.mavlink.link import LinkConfig, MavlinkLink, Received
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.mark.xfail(strict=True, reason="host bug: UDP datagrams are stamped when read, not when they arrived")
+def test_a_datagram_is_stamped_with_its_arrival_while_the_reader_is_busy() -> None:
+    port = _free_udp_port()
+    link = MavlinkLink(LinkConfig(url=f"udpin:127.0.0.1:{port}"))
+    got: dict[str, int] = {}
+    busy = threading.Event()
+
+    def on_message(rec: Received) -> None:
+        if rec.type == "HEARTBEAT" and not busy.is_set():
+            busy.set()
+            time.sleep(0.3)  # the reader is descheduled for 300 ms
+        elif rec.type == "SYSTEM_TIME":
+            got["rx_ns"] = rec.rx_ns
+
+    link.subscribe(on_message)
+    link.start()
+    try:
+        mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+            hb = mav.heartbeat_encode(mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4)
+            tx.sendto(hb.pack(mav), ("127.0.0.1", port))
+            assert busy.wait(2.0)
+            sent_ns = time.monotonic_ns()
+            tx.sendto(mav.system_time_encode(0, 1000).pack(mav), ("127.0.0.1", port))
+            deadline = time.monotonic() + 2.0
+            while "rx_ns" not in got and time.monotonic() < deadline:
+                time.sleep(0.01)
+    finally:
+        link.stop()
+    assert "rx_ns" in got
+    assert got["rx_ns"] - sent_ns < 50_000_000, f"stamped {(got['rx_ns'] - sent_ns) / 1e6:.0f} ms after it was sent"

@@ -122,7 +122,7 @@ def _vio_between_gps(scored: Scored, *, in_bursts: bool) -> list[tuple[int, int,
 
 
 def test_no_frame_labelled_vio_while_gps_samples_bracket_it(scored: Scored) -> None:
-    """Outside parameter downloads (those are the strict xfail below)."""
+    """Outside parameter downloads (those are the test below)."""
     wrong = _vio_between_gps(scored, in_bursts=False)
     assert not wrong, wrong[:5]
     outside = {
@@ -131,10 +131,6 @@ def test_no_frame_labelled_vio_while_gps_samples_bracket_it(scored: Scored) -> N
     assert outside == {"gps_3d"}, scored.poses
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="host bug: frames wait max_wait_ms (500 ms), GPS is 1 Hz during the burst",
-)
 def test_no_frame_labelled_vio_during_a_parameter_download(
     tmp_path_factory: pytest.TempPathFactory,
 ) -> None:
@@ -165,7 +161,6 @@ def test_recomputing_the_flight_reproduces_every_frame_exactly(scored: Scored) -
     assert_replay_reproduces_every_frame(scored.flight.mcap)
 
 
-@pytest.mark.xfail(strict=True, reason="host bug: a foreign camera at component 100 is silently counted as a self-echo")
 def test_a_foreign_camera_at_component_100_is_logged_loudly(tmp_path_factory: pytest.TempPathFactory) -> None:
     """Issue 9: a second device at component 100 of the vehicle must be detected and said, not dropped as an echo."""
     scored = flown("ardupilot_no_timesync", tmp_path_factory)

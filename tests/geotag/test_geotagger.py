@@ -449,8 +449,11 @@ def test_frame_is_emitted_after_max_wait_moved_by_the_earlier_velocity_and_flagg
     rig.pose(13_000, dlat_e7=300, v_ned=(0.0, 2.0, 0.0))
     rig.expose()
     mid = host_ns(MID_US)
-    assert rig.poll(mid + 499_999_999) == []
-    (f,) = rig.poll(mid + 500_000_000)
+    # A usable GPS sample 45 ms before mid: the next one may be up to max_gps_gap_s (1.5 s) away, so the
+    # frame waits that long plus max_wait_ms before it is moved by dead reckoning.
+    assert rig.poll(mid + 500_000_000) == []
+    assert rig.poll(mid + 1_999_999_999) == []
+    (f,) = rig.poll(mid + 2_000_000_000)
     assert FrameFlag.POSE_EXTRAPOLATED.value in f.flags
     assert FrameFlag.STALE_POSE.value not in f.flags  # 45 ms of dead reckoning: bound 3 mm
     assert f.position_error_bound_m == pytest.approx(3.0 * 0.045**2 / 2, rel=1e-6)
@@ -458,7 +461,7 @@ def test_frame_is_emitted_after_max_wait_moved_by_the_earlier_velocity_and_flagg
     assert f.pose_gap_after_ms == math.inf
     held = np.asarray(LocalFrame(*ORIGIN).geodetic_to_enu((LAT_E7 + 300) * 1e-7, *ORIGIN[1:]))
     np.testing.assert_allclose(enu(f), held + np.array([2.0 * 0.045, 0.0, 0.0]), atol=1e-6)
-    assert f.emitted_host_ns == mid + 500_000_000
+    assert f.emitted_host_ns == mid + 2_000_000_000
 
 
 def test_long_dead_reckoning_is_flagged_stale():
@@ -466,7 +469,7 @@ def test_long_dead_reckoning_is_flagged_stale():
     rig.gps(12_400)
     rig.pose(12_500)
     rig.expose()
-    (f,) = rig.poll(host_ns(MID_US) + 500_000_000)
+    (f,) = rig.poll(host_ns(MID_US) + 2_000_000_000)
     assert {FrameFlag.POSE_EXTRAPOLATED.value, FrameFlag.STALE_POSE.value} <= set(f.flags)
     assert f.position_error_bound_m == pytest.approx(3.0 * 0.545**2 / 2, rel=1e-6)
 

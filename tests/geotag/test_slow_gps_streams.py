@@ -14,16 +14,11 @@ waits for it and is then placed by GPS between the two.
 
 from __future__ import annotations
 
-import pytest
 from test_geotagger import MID_US, ORIGIN, Rig, host_ns
 
 from icgt.geotag.geotagger import GeotagConfig
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="host bug: max_wait_ms (500 ms) is shorter than max_gps_gap_s (1.5 s)",
-)
 def test_a_frame_waits_for_the_later_gps_sample_of_a_1_hz_stream() -> None:
     rig = Rig(GeotagConfig(origin=ORIGIN))  # the recorder's defaults: max_wait 500 ms, max gap 1.5 s
     rig.gps(12_990)

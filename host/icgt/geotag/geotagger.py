@@ -203,7 +203,7 @@ class Geotagger:
                 p = self._pending[0]
             mid_host_ns = self._mid_host_ns(p)
             waited_ms = (now_host_ns - mid_host_ns) / 1e6
-            if not (flush or waited_ms >= self._cfg.max_wait_ms or self._later_samples_arrived(mid_host_ns)):
+            if not (flush or waited_ms >= self._wait_limit_ms(mid_host_ns) or self._later_samples_arrived(mid_host_ns)):
                 return emitted
             record = self._build(p, mid_host_ns, now_host_ns)
             with self._lock:
@@ -232,6 +232,19 @@ class Geotagger:
         fused = self._tm.fused.latest()
         att = self._attitude_buffer().latest()
         return fused is not None and fused.boot_us >= mid_boot and att is not None and att.boot_us >= mid_boot
+
+    def _wait_limit_ms(self, mid_host_ns: int) -> float:
+        """How long a frame may wait for the position sample after it: ``max_wait_ms``, or longer while the
+        last usable GPS sample is recent enough to be interpolated from (a 1-2 Hz stream: its next sample
+        is up to ``max_gps_gap_s`` away, and holding the frame beats placing it by the local position)."""
+        limit = self._cfg.max_wait_ms
+        latest = self._tm.fused.latest()
+        mid_boot = self._ap.host_to_autopilot_us(mid_host_ns)
+        if latest is not None and latest.usable and mid_boot is not None and latest.boot_us <= mid_boot:
+            gap_ms = self._cfg.max_gps_gap_s * 1000.0
+            if (mid_boot - latest.boot_us) / 1000.0 < gap_ms:
+                limit = max(limit, gap_ms + self._cfg.max_wait_ms)
+        return limit
 
     def _attitude_buffer(self) -> TelemetryBuffer[AttitudeSample]:
         # ATTITUDE_QUATERNION carries the estimator's quaternion without the Euler round trip.

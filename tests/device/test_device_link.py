@@ -404,7 +404,7 @@ def test_a_silent_device_is_a_clear_error(host, device):
 
 
 def test_a_port_that_does_not_exist_is_a_clear_error(host, tmp_path):
-    with pytest.raises(DeviceLinkError, match=r"cannot open device .*ttyNONE"):
+    with pytest.raises(DeviceLinkError, match=r"device .*ttyNONE does not exist"):
         host.link(str(tmp_path / "ttyNONE")).start()
 
 

@@ -18,6 +18,7 @@ from typing import Any
 
 import pytest
 import shapely
+from export_exit import expected_export_exit
 
 from icgt.cli import main
 from icgt.export.common import RECORD_FIELDS, utc_iso
@@ -30,7 +31,7 @@ KML = "{http://www.opengis.net/kml/2.2}"
 def out(export_flight: Any, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("gis")
     args = ["export", str(export_flight.mcap), "--images", str(export_flight.card), "--out", str(out), "--no-progress"]
-    assert main(args) == 0
+    assert main(args) == expected_export_exit(out)
     return out
 
 

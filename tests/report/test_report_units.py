@@ -66,6 +66,7 @@ def test_a_recording_without_frames_still_reports(tmp_path: Path) -> None:
 
     path = tmp_path / "log.mcap"
     with McapRecorder(path, fsync=False) as rec:
+        rec.add_metadata("icgt.config", {"source": "test", "config": "{}"})  # as the recorder writes
         rec.register_json(topics.LINK_EVENTS, "icgt.link_event", {"type": "object"})
         for i, kind in enumerate(("disconnected", "connected")):
             event = {"link": "device", "kind": kind, "detail": kind, "count": 0, "outage_ns": i * 10**9}

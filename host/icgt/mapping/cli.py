@@ -15,11 +15,25 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
-from icgt.export.cli import camera_from_metadata, geoid_separation_from_log, match_pairs, parse_plane, surface_normal_from_metadata
+from icgt.export.cli import (
+    camera_from_metadata,
+    geoid_separation_from_log,
+    match_pairs,
+    parse_plane,
+    surface_normal_from_metadata,
+)
 from icgt.export.common import ProblemLog, check_out_dir
 from icgt.geodesy import LocalFrame
-from icgt.geometry import CameraModel, FrameSolution, GeometryError, Plane, Projector, load_calibration, origin_from_frames
-from icgt.geotag.record import FrameRecord
+from icgt.geometry import (
+    CameraModel,
+    FrameSolution,
+    GeometryError,
+    Plane,
+    Projector,
+    load_calibration,
+    origin_from_frames,
+)
+from icgt.geotag.record import FrameFlag, FrameRecord
 from icgt.mapping import MappingError
 from icgt.mapping.detections import read_detections
 from icgt.mapping.geojson import face_frame_json, features_face, features_wgs84, write_json
@@ -31,6 +45,9 @@ from icgt.mapping.surface import Face, find_face
 from icgt.mapping.tiles import TileRef, cut, load_index, stems
 
 log = logging.getLogger(__name__)
+
+UNTRUSTED_POSE = (FrameFlag.STALE_POSE, FrameFlag.POSE_EXTRAPOLATED, FrameFlag.NO_FIX, FrameFlag.NO_ATTITUDE)
+"""Frames flagged so are not used for placing detections or the mosaic (unless asked: trust_flagged)."""
 
 
 @dataclass
@@ -70,6 +87,7 @@ def open_session(
     plane: Plane | None,
     anchor: str,
     geoid: float | str | None = "auto",
+    trust_flagged: bool = False,
 ) -> Session:
     from icgt.ingest import read
 
@@ -89,7 +107,9 @@ def open_session(
     face = find_face(camera, frames, plane=plane, normal=surface_normal_from_metadata(recording.metadata))
     if anchor not in ("range", "structure"):
         raise MappingError(f"--anchor must be range or structure, not {anchor!r}")
-    projector = Projector(camera, origin=origin, structure=face.plane, anchor="range" if anchor == "range" else "structure")
+    projector = Projector(
+        camera, origin=origin, structure=face.plane, anchor="range" if anchor == "range" else "structure"
+    )
     problems = ProblemLog()
     pairs = match_pairs(frames, images_dir, problems)
     images: dict[str, tuple[Path, FrameRecord]] = {}
@@ -99,7 +119,13 @@ def open_session(
     sols: dict[int, FrameSolution] = {}
     recs = [rec for _, rec in images.values()]
     for rec, sol in zip(recs, projector.solve_many(recs), strict=True):
-        if isinstance(sol, GeometryError):
+        bad = [f.value for f in UNTRUSTED_POSE if f.value in rec.flags]
+        if bad and not trust_flagged:
+            why = f"pose flagged {', '.join(bad)} (gaps {rec.pose_gap_before_ms:.0f} / {rec.pose_gap_after_ms:.0f} ms)"
+            problems.add(
+                "", rec.frame_seq, "error", "untrusted_pose", f"{why}: not used (--trust-flagged-poses)", "map"
+            )
+        elif isinstance(sol, GeometryError):
             problems.add("", rec.frame_seq, "warning", "no_geometry", str(sol), "map")
         else:
             sols[rec.frame_seq] = sol
@@ -128,7 +154,9 @@ def _from_tiles(dets: list[Detection], index: dict[str, TileRef]) -> list[Detect
         if t is None:
             out.append(d)
         else:
-            out.append(dataclasses.replace(d, image=t.image, points_px=d.points_px + np.array([t.x0, t.y0], dtype=np.float64)))
+            out.append(
+                dataclasses.replace(d, image=t.image, points_px=d.points_px + np.array([t.x0, t.y0], dtype=np.float64))
+            )
     return out
 
 
@@ -148,9 +176,12 @@ def run_map(
     extent: tuple[float, float, float, float] | None = None,
     min_tolerance_mm: float = 10.0,
     cache_mb: float = 512.0,
+    trust_flagged: bool = False,
 ) -> MapResult:
     check_out_dir(out_dir, images_dir)
-    ses = open_session(log_path, images_dir, calibration=calibration, plane=plane, anchor=anchor)
+    ses = open_session(
+        log_path, images_dir, calibration=calibration, plane=plane, anchor=anchor, trust_flagged=trust_flagged
+    )
     index = load_index(tiles) if tiles is not None else {}
     stem_map = {p.stem: name for name, (p, _) in ses.images.items()} | stems(index)
 
@@ -170,7 +201,7 @@ def run_map(
             continue
         sol = ses.solutions.get(hit[1].frame_seq)
         if sol is None:
-            unplaced.append((d, "the image's frame has no pose or surface"))
+            unplaced.append((d, "the image's frame has no trusted pose or no surface (problems.csv)"))
             continue
         try:
             p = place(d, hit[1], sol, ses.size(d.image), ses.projector, ses.face, errors)
@@ -224,7 +255,11 @@ def mosaic_images(ses: Session) -> list[MosaicImage]:
 
 
 def _write_detections_csv(
-    path: Path, dets: Sequence[Detection], placed: Sequence[Placed], unplaced: Sequence[tuple[Detection, str]], instances: Sequence[Instance]
+    path: Path,
+    dets: Sequence[Detection],
+    placed: Sequence[Placed],
+    unplaced: Sequence[tuple[Detection, str]],
+    instances: Sequence[Instance],
 ) -> None:
     """Every detection read, placed or not: its instance, or why it was not placed."""
     owner = {id(m): inst.id for inst in instances for m in inst.members}
@@ -238,7 +273,6 @@ def _write_detections_csv(
             w.writerow(cols)
             for d in dets:
                 p = by_det.get(id(d))
-                fmt = lambda x: "" if x is None else f"{x:.2f}"  # noqa: E731
                 w.writerow([
                     d.source, d.image, d.kind, d.category, "" if d.score is None else d.score,
                     "" if p is None else p.frame_seq, "" if p is None else owner.get(id(p), ""),
@@ -247,6 +281,10 @@ def _write_detections_csv(
                 ])  # fmt: skip
     except OSError as exc:
         raise MappingError(f"cannot write {path}: {exc.strerror or exc}") from exc
+
+
+def fmt(x: float | None) -> str:
+    return "" if x is None else f"{x:.2f}"
 
 
 def _extent(text: str | None) -> tuple[float, float, float, float] | None:
@@ -265,22 +303,32 @@ def add_map_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("log", type=Path, help="the recording (.mcap)")
     p.add_argument("--images", type=Path, required=True, help="folder of the camera card's JPEGs (only read)")
     p.add_argument("--detections", type=Path, action="append", required=True,
-                   help="COCO JSON, icgt-detections polyline JSON, or a folder of YOLO segmentation txt (repeatable)")  # fmt: skip
+                   help="COCO JSON, icgt-detections JSON or a folder of YOLO segment txt (repeatable)")  # fmt: skip
     p.add_argument("--out", type=Path, required=True, help="output folder")
-    p.add_argument("--calibration", type=Path, help="camera calibration (.toml, OpenCV .yaml/.json); default: the log's")
-    p.add_argument("--plane", help="structure plane E,N,U,nE,nN,nU (recording ENU); default: fitted to the LiDAR ranges")
+    p.add_argument(
+        "--calibration", type=Path, help="camera calibration (.toml, OpenCV .yaml/.json); default: the log's"
+    )
+    p.add_argument(
+        "--plane", help="structure plane E,N,U,nE,nN,nU (recording ENU); default: fitted to the LiDAR ranges"
+    )
     p.add_argument("--anchor", choices=("range", "structure"), default="range",
-                   help="range: each image's plane through its LiDAR return (default); structure: the one plane")  # fmt: skip
+                   help="range: each image's plane through its LiDAR return (default); structure: one")  # fmt: skip
     p.add_argument("--classes", help="YOLO class names, comma-separated in class order")
-    p.add_argument("--tiles", type=Path, help="tiles.json of `icgt tiles`: detections on tiles map back to their images")
+    p.add_argument(
+        "--tiles", type=Path, help="tiles.json of `icgt tiles`: detections on tiles map back to their images"
+    )
     p.add_argument("--mm-per-px", type=float, default=2.0, help="mosaic resolution [mm/px] (default 2)")
     p.add_argument("--no-mosaic", action="store_true", help="skip the mosaic")
     p.add_argument("--extent", help="mosaic extent s0,t0,s1,t1 [face m] (default: every footprint)")
-    p.add_argument("--position-sigma-m", type=float, default=Errors.position_m, help="1-sigma camera position error [m]")
+    p.add_argument(
+        "--position-sigma-m", type=float, default=Errors.position_m, help="1-sigma camera position error [m]"
+    )
     p.add_argument("--attitude-sigma-deg", type=float, default=Errors.attitude_deg, help="1-sigma attitude error [deg]")
     p.add_argument("--range-sigma-m", type=float, default=Errors.range_m, help="1-sigma LiDAR range error [m]")
     p.add_argument("--min-tolerance-mm", type=float, default=10.0, help="smallest merge distance [mm]")
     p.add_argument("--cache-mb", type=float, default=512.0, help="decoded-image cache of the mosaic [MB]")
+    p.add_argument("--trust-flagged-poses", action="store_true",
+                   help="use frames flagged stale_pose/pose_extrapolated too (default: reported, unused)")  # fmt: skip
 
 
 def cmd_map(args: argparse.Namespace) -> int:
@@ -290,7 +338,7 @@ def cmd_map(args: argparse.Namespace) -> int:
         classes=[c.strip() for c in args.classes.split(",")] if args.classes else None, tiles=args.tiles,
         errors=Errors(args.position_sigma_m, args.attitude_sigma_deg, args.range_sigma_m),
         mm_per_px=None if args.no_mosaic else args.mm_per_px, extent=_extent(args.extent),
-        min_tolerance_mm=args.min_tolerance_mm, cache_mb=args.cache_mb,
+        min_tolerance_mm=args.min_tolerance_mm, cache_mb=args.cache_mb, trust_flagged=args.trust_flagged_poses,
     )  # fmt: skip
     kinds = ", ".join(f"{n} {k}" for k, n in sorted(_count(result.instances).items())) or "none"
     print(
@@ -333,7 +381,7 @@ def run_tiles(
     ses = open_session(log_path, images_dir, calibration=calibration, plane=plane, anchor=anchor)
     rows: list[dict[str, Any]] = []
     for name, (path, rec) in sorted(ses.images.items()):
-        w, h = ses.size(name)
+        w, _h = ses.size(name)
         f = ses.camera.width_px / w
         for t in cut(path, out_dir, size, overlap):
             t["frame_seq"] = rec.frame_seq
@@ -346,7 +394,10 @@ def run_tiles(
                 if np.isfinite(wp.enu).all():
                     t["corners_face_m"] = np.round(ses.face.to_face(wp.enu), 5).tolist()
                     if wp.lat_deg is not None and wp.lon_deg is not None:
-                        t["corners_wgs84"] = [[round(float(a), 9), round(float(b), 9)] for a, b in zip(wp.lon_deg, wp.lat_deg, strict=True)]
+                        t["corners_wgs84"] = [
+                            [round(float(a), 9), round(float(b), 9)]
+                            for a, b in zip(wp.lon_deg, wp.lat_deg, strict=True)
+                        ]
             rows.append(t)
     index = {"format": "icgt-tiles", "tile_size_px": size, "overlap_px": overlap,
              "face_frame": face_frame_json(ses.face, ses.origin), "tiles": rows}  # fmt: skip

@@ -115,7 +115,9 @@ def read_coco(path: Path, data: Mapping[str, Any], image_size: ImageSize) -> lis
         seg = ann.get("segmentation")
         size = image_size(name)
         if isinstance(w_decl, int) and isinstance(h_decl, int) and (w_decl, h_decl) != size:
-            raise MappingError(f"{where}: the images table says {name} is {w_decl}x{h_decl}, the file is {size[0]}x{size[1]}")
+            raise MappingError(
+                f"{where}: the images table says {name} is {w_decl}x{h_decl}, the file is {size[0]}x{size[1]}"
+            )
         if isinstance(seg, dict):
             mask = decode_rle(seg, where)
             if (mask.shape[1], mask.shape[0]) != size:
@@ -207,7 +209,9 @@ def _yaml_names(path: Path) -> list[str]:
     raise MappingError(f"{path}: no names: list or mapping")
 
 
-def read_yolo(folder: Path, names: Sequence[str], image_for_stem: Mapping[str, str], image_size: ImageSize) -> list[Detection]:
+def read_yolo(
+    folder: Path, names: Sequence[str], image_for_stem: Mapping[str, str], image_size: ImageSize
+) -> list[Detection]:
     out: list[Detection] = []
     for txt in sorted(folder.glob("*.txt")):
         if txt.name == "classes.txt":
@@ -252,7 +256,9 @@ def read_detections(
         return read_yolo(path, yolo_class_names(path, classes), image_for_stem, image_size)
     data = _load_json(path)
     if isinstance(data, list):
-        raise MappingError(f"{path}: a bare COCO results list cannot name its images: give the file with its images table")
+        raise MappingError(
+            f"{path}: a bare COCO results list cannot name its images: give the file with its images table"
+        )
     if not isinstance(data, dict):
         raise MappingError(f"{path}: expected a JSON object")
     if data.get("format") == "icgt-detections":

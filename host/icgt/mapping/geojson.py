@@ -67,14 +67,25 @@ def features_wgs84(
         lat, lon, alt = origin.enu_to_geodetic(inst.enu)
         pts = np.stack([np.atleast_1d(lon), np.atleast_1d(lat)], axis=1)
         if inst.kind != CRACK:
-            poly = shapely.Polygon(pts)
-            if poly.is_valid and poly.area > 0 and not poly.exterior.is_ccw:
+            # the right-hand rule in a local plane (x east scaled by cos(lat)); a ring on a vertical face
+            # has (almost) no area on the map, and whichever way it turns is kept consistent with it
+            x = (pts[:, 0] - pts[0, 0]) * np.cos(np.radians(pts[0, 1]))
+            y = pts[:, 1] - pts[0, 1]
+            signed = float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+            if signed < 0:
                 pts, alt = pts[::-1], np.atleast_1d(alt)[::-1]
         coords = [[round(float(p[0]), 9), round(float(p[1]), 9)] for p in pts]
         if geoid_separation_m is not None:
             for c, a in zip(coords, np.atleast_1d(alt), strict=True):
                 c.append(round(float(a) + geoid_separation_m, 3))
-        feats.append({"type": "Feature", "id": inst.id, "geometry": _geometry(inst.kind, coords), "properties": _props(inst, origin)})
+        feats.append(
+            {
+                "type": "Feature",
+                "id": inst.id,
+                "geometry": _geometry(inst.kind, coords),
+                "properties": _props(inst, origin),
+            }
+        )
     return {"type": "FeatureCollection", "features": feats}
 
 
@@ -85,7 +96,14 @@ def features_face(instances: Sequence[Instance], face: Face, origin: LocalFrame)
         if inst.kind != CRACK:
             pts = np.asarray(orient(shapely.Polygon(pts), 1.0).exterior.coords)[:-1]
         coords = [[round(float(p[0]), 5), round(float(p[1]), 5)] for p in pts]
-        feats.append({"type": "Feature", "id": inst.id, "geometry": _geometry(inst.kind, coords), "properties": _props(inst, origin)})
+        feats.append(
+            {
+                "type": "Feature",
+                "id": inst.id,
+                "geometry": _geometry(inst.kind, coords),
+                "properties": _props(inst, origin),
+            }
+        )
     return {"type": "FeatureCollection", "icgt_face_frame": face_frame_json(face, origin), "features": feats}
 
 

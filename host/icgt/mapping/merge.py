@@ -54,7 +54,7 @@ def resample(line: FloatArray, step: float = STEP_M) -> FloatArray:
     cum = np.concatenate([[0.0], np.cumsum(seg)])
     if cum[-1] <= 0:
         return line[:1].copy()
-    n = max(2, int(math.ceil(cum[-1] / step)) + 1)
+    n = max(2, math.ceil(cum[-1] / step) + 1)
     s = np.linspace(0.0, cum[-1], n)
     return np.stack([np.interp(s, cum, line[:, 0]), np.interp(s, cum, line[:, 1])], axis=1)
 
@@ -158,7 +158,7 @@ def fuse_crack(members: Sequence[Placed]) -> tuple[FloatArray, FloatArray]:
     hi = float(np.median(free_hi)) if free_hi else max(v for v, _ in highs)
     if hi <= lo:
         lo, hi = min(v for v, _ in lows), max(v for v, _ in highs)
-    n = max(2, int(math.ceil((hi - lo) / STEP_M)) + 1)
+    n = max(2, math.ceil((hi - lo) / STEP_M) + 1)
     stations = np.linspace(lo, hi, n)
     acc_st = np.zeros((n, 2))
     acc_e = np.zeros((n, 3))

@@ -144,7 +144,9 @@ def build_mosaic(
     width = max(1, math.ceil((s1 - s0) / res))
     height = max(1, math.ceil((t1 - t0) / res))
     if width * height > MAX_PIXELS:
-        raise MappingError(f"a {width} x {height} px mosaic is too large at {mm_per_px} mm/px: choose a coarser --mm-per-px")
+        raise MappingError(
+            f"a {width} x {height} px mosaic is too large at {mm_per_px} mm/px: choose a coarser --mm-per-px"
+        )
     s1, t0 = s0 + width * res, t1 - height * res
     bboxes = np.asarray([im.bbox for im in images])
     cache = _Cache(int(cache_mb * 1024 * 1024))
@@ -153,21 +155,21 @@ def build_mosaic(
 
     def strips() -> Iterator[np.ndarray]:
         nonlocal covered
-        cols = s0 + (np.arange(width) + 0.5) * res
+        cols: FloatArray = s0 + (np.arange(width, dtype=np.float64) + 0.5) * res
         for row0 in range(0, height, strip_rows):
             n = min(strip_rows, height - row0)
             t_hi = t1 - row0 * res
             t_lo = t1 - (row0 + n) * res
-            rows = t1 - (row0 + np.arange(n) + 0.5) * res
+            rows: FloatArray = t1 - (row0 + np.arange(n, dtype=np.float64) + 0.5) * res
             best = np.full((n, width), np.inf, dtype=np.float32)
             rgb = np.zeros((n, width, 3), dtype=np.float32)
             cand = np.flatnonzero((bboxes[:, 1] < t_hi) & (bboxes[:, 3] > t_lo))
             for k in cand:
-                im = images[k]
+                im = images[int(k)]
                 c_lo = max(0, int((im.bbox[0] - s0) / res) - 1)
-                c_hi = min(width, int(math.ceil((im.bbox[2] - s0) / res)) + 1)
+                c_hi = min(width, math.ceil((im.bbox[2] - s0) / res) + 1)
                 r_lo = max(0, int((t1 - im.bbox[3]) / res) - 1 - row0)
-                r_hi = min(n, int(math.ceil((t1 - im.bbox[1]) / res)) + 1 - row0)
+                r_hi = min(n, math.ceil((t1 - im.bbox[1]) / res) + 1 - row0)
                 if c_hi <= c_lo or r_hi <= r_lo:
                     continue
                 uu, vv = face_grid_to_pixel(
@@ -210,7 +212,9 @@ def build_mosaic(
         raise MappingError(f"cannot write {out_png}: {exc.strerror or exc}") from exc
     _world_file(out_png.with_suffix(".pgw"), res, s0 + res / 2, t1 - res / 2)
     _check_png(out_png, width, height)
-    return MosaicInfo(out_png, width, height, mm_per_px, (s0, t0, s1, t1), len(used), cache.decodes, covered / (width * height))
+    return MosaicInfo(
+        out_png, width, height, mm_per_px, (s0, t0, s1, t1), len(used), cache.decodes, covered / (width * height)
+    )
 
 
 def _world_file(path: Path, res: float, s_centre: float, t_centre: float) -> None:

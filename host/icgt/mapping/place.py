@@ -56,7 +56,8 @@ def place(
     f = cam.width_px / w
     if abs(cam.height_px / f - h) > 1.0:
         raise MappingError(
-            f"{det.image}: the image is {w}x{h}, the calibration {cam.width_px}x{cam.height_px}: not the same aspect ratio"
+            f"{det.image}: the image is {w}x{h}, the calibration {cam.width_px}x{cam.height_px}: "
+            "not the same aspect ratio"
         )
     pts = (det.points_px + 0.5) * f - 0.5
     try:
@@ -91,7 +92,12 @@ def place(
         area = float(abs(poly.area)) * 1e6 if poly.is_valid else float(abs(shapely.make_valid(poly).area)) * 1e6
     margin = 1.5
     px = det.points_px
-    at_border = (px[:, 0] < margin - 0.5) | (px[:, 1] < margin - 0.5) | (px[:, 0] > w - 0.5 - margin) | (px[:, 1] > h - 0.5 - margin)
+    at_border = (
+        (px[:, 0] < margin - 0.5)
+        | (px[:, 1] < margin - 0.5)
+        | (px[:, 0] > w - 0.5 - margin)
+        | (px[:, 1] > h - 0.5 - margin)
+    )
     cut_ends = (bool(at_border[0]), bool(at_border[-1]))
     truncated = bool(at_border.any())
     return Placed(

@@ -11,6 +11,7 @@ are the union of each column's runs as pixel squares (shapely), so no pixel is l
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import numpy as np
@@ -19,6 +20,14 @@ from pycocotools import mask as coco_mask
 
 from icgt.geodesy import FloatArray
 from icgt.mapping import MappingError
+
+
+def _decode(obj: Any) -> np.ndarray:
+    # pycocotools 2.0.11 under numpy 2 warns about its own array conversion (not ours to fix)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        out: np.ndarray = coco_mask.decode(obj)
+    return out
 
 
 def decode_rle(rle: dict[str, Any], where: str) -> np.ndarray:
@@ -37,7 +46,7 @@ def decode_rle(rle: dict[str, Any], where: str) -> np.ndarray:
     else:
         raise MappingError(f"{where}: RLE counts must be a string or a list of integers")
     try:
-        m = coco_mask.decode(obj)
+        m = _decode(obj)
     except Exception as exc:  # pycocotools raises bare exceptions on malformed strings
         raise MappingError(f"{where}: cannot decode the RLE mask: {exc}") from exc
     out: np.ndarray = m.astype(bool)
@@ -50,7 +59,7 @@ def rasterize(polygon_px: FloatArray, height: int, width: int) -> np.ndarray:
     """Fill a polygon given in OpenCV pixel coordinates -> bool mask (H, W) (COCO's rasteriser)."""
     flat = (np.asarray(polygon_px, dtype=np.float64) + 0.5).ravel().tolist()
     rles = coco_mask.frPyObjects([flat], height, width)
-    out: np.ndarray = coco_mask.decode(coco_mask.merge(rles)).astype(bool)
+    out: np.ndarray = _decode(coco_mask.merge(rles)).astype(bool)
     return out
 
 
@@ -90,7 +99,7 @@ def centreline(mask: np.ndarray, *, step_px: float = 2.0) -> tuple[FloatArray, f
 
 def outlines(mask: np.ndarray) -> list[FloatArray]:
     """Outer outlines (K, 2) of a mask's connected parts, in OpenCV pixel coordinates, largest first."""
-    boxes = []
+    boxes: list[Any] = []
     for x in np.flatnonzero(mask.any(axis=0)):
         col = np.concatenate([[False], mask[:, x], [False]])
         d = np.diff(col.astype(np.int8))

@@ -80,7 +80,9 @@ def load_index(path: Path) -> dict[str, TileRef]:
     out: dict[str, TileRef] = {}
     for i, t in enumerate(data["tiles"]):
         try:
-            out[str(t["tile"])] = TileRef(str(t["image"]), int(t["x0"]), int(t["y0"]), int(t["width"]), int(t["height"]))
+            out[str(t["tile"])] = TileRef(
+                str(t["image"]), int(t["x0"]), int(t["y0"]), int(t["width"]), int(t["height"])
+            )
         except (KeyError, TypeError, ValueError) as exc:
             raise MappingError(f"{path}: tiles[{i}] is malformed ({exc})") from None
     return out

@@ -77,7 +77,9 @@ def detect(
     out: list[SimDetection] = []
     for c in surface.cracks:
         uv = _to_pixels(scenario, e, _densify(np.asarray(c.points_m), step_m))
-        inside = np.isfinite(uv).all(axis=1) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] <= h - 1)
+        inside = (
+            np.isfinite(uv).all(axis=1) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] <= h - 1)
+        )
         # contiguous visible runs
         edges = np.diff(np.concatenate([[0], inside.astype(np.int8), [0]]))
         for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
@@ -85,7 +87,7 @@ def detect(
             length = float(np.sum(np.linalg.norm(np.diff(run, axis=0), axis=1)))
             if len(run) < 2 or length < 6.0:
                 continue
-            n = max(2, int(round(length / vertex_px)) + 1)
+            n = max(2, round(length / vertex_px) + 1)
             seg = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(run, axis=0), axis=1))])
             s = np.linspace(0.0, seg[-1], n)
             pts = np.stack([np.interp(s, seg, run[:, 0]), np.interp(s, seg, run[:, 1])], axis=1)
@@ -107,7 +109,9 @@ def detect(
     return out
 
 
-def detect_all(scenario: Scenario, exposures: Sequence[ExposureTruth], *, seed: int = 0, noise_px: float = 0.3) -> list[SimDetection]:
+def detect_all(
+    scenario: Scenario, exposures: Sequence[ExposureTruth], *, seed: int = 0, noise_px: float = 0.3
+) -> list[SimDetection]:
     rng = np.random.default_rng(seed)
     out: list[SimDetection] = []
     for e in sorted(exposures, key=lambda x: x.frame_number):
@@ -132,7 +136,7 @@ def write_polylines(path: Path, dets: Sequence[SimDetection]) -> None:
 
 
 def _crack_polygon(d: SimDetection) -> FloatArray:
-    half = max((d.width_px or 1.0) / 2.0, 0.75)
+    half = max((d.width_px or 1.0) / 2.0, 0.5)  # a mask is at least a pixel wide
     poly = shapely.LineString(d.points_px).buffer(half, cap_style="flat")
     return np.asarray(poly.exterior.coords)[:-1]
 

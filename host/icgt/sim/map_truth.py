@@ -112,7 +112,9 @@ def p50_p95(values: Sequence[float]) -> tuple[float, float]:
     return float(np.percentile(a, 50)), float(np.percentile(a, 95))
 
 
-def geotag_errors_m(frames: Sequence[Any], truth_exposures: Path, scenario: Any, recording_origin: LocalFrame) -> list[float]:
+def geotag_errors_m(
+    frames: Sequence[Any], truth_exposures: Path, scenario: Any, recording_origin: LocalFrame
+) -> list[float]:
     """|recorded camera position - true| [m] per frame, paired with its true exposure by start_device_us."""
     o = scenario.origin
     frame = LocalFrame(o.lat_deg, o.lon_deg, o.ellipsoid_height_m)

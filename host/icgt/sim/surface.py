@@ -22,6 +22,7 @@ point_m + s * S + t * T in the scenario's ENU frame.
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from dataclasses import dataclass
@@ -89,7 +90,7 @@ def _points(r: _Reader, key: str, raw: Any, minimum: int) -> tuple[tuple[float, 
 def _items(r: _Reader, key: str) -> list[_Reader]:
     raw = r._get(key, [])
     if not isinstance(raw, list) or not all(isinstance(x, dict) for x in raw):
-        r.fail(key, "expected an array of tables ([[surface.%s]])" % key)
+        r.fail(key, f"expected an array of tables ([[surface.{key}]])")
     return [_Reader(x, r.source, f"{r.prefix}{key}[{i}].") for i, x in enumerate(raw)]
 
 
@@ -168,7 +169,7 @@ def _segment_distance(p: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray
 def polyline_distance(points: FloatArray, polyline: FloatArray) -> FloatArray:
     """Distance of each point (N, 2) to a polyline (M, 2)."""
     d = np.full(len(points), np.inf)
-    for a, b in zip(polyline[:-1], polyline[1:], strict=True):
+    for a, b in itertools.pairwise(polyline):
         d = np.minimum(d, _segment_distance(points, a, b))
     return d
 
@@ -220,7 +221,10 @@ def _wgs84(scenario: Scenario, enu: FloatArray) -> list[list[float]]:
     o = scenario.origin
     lat, lon, h = LocalFrame(o.lat_deg, o.lon_deg, o.ellipsoid_height_m).enu_to_geodetic(enu)
     alt = np.asarray(h) - o.geoid_separation_m
-    return [[float(a), float(b), float(c)] for a, b, c in zip(np.atleast_1d(lat), np.atleast_1d(lon), np.atleast_1d(alt), strict=True)]
+    return [
+        [float(a), float(b), float(c)]
+        for a, b, c in zip(np.atleast_1d(lat), np.atleast_1d(lon), np.atleast_1d(alt), strict=True)
+    ]
 
 
 def midpoint(polyline: FloatArray) -> FloatArray:
@@ -313,4 +317,3 @@ def check_surface(surface: Surface, source: str) -> None:
         for b, gb in shapes[i + 1 :]:
             if ga.distance(gb) < 0.05:
                 raise ScenarioError(f"{source}: surface: defects {a} and {b} are closer than 50 mm")
-

@@ -73,6 +73,7 @@ bench: venv build
 	$(PY) benchmarks/clock_sync.py
 	$(PY) benchmarks/mcap_write.py
 	$(PY) benchmarks/recorder_flight.py --scenario deck_pass --out bench-out/recorder
+	$(PY) benchmarks/damage_map.py --skip-1h
 
 clean:
 	rm -rf build $(VENV) demo-out

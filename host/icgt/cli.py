@@ -220,7 +220,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_export_arguments(export)
     export.set_defaults(func=_cmd_export)
 
-    from icgt.mapping.cli import add_map_arguments, add_tiles_arguments
+    from icgt.mapping.args import add_map_arguments, add_tiles_arguments
 
     mapping = sub.add_parser("map", help="place detections on the structure, merge them, write GeoJSON and a mosaic")
     add_map_arguments(mapping)

@@ -4,8 +4,10 @@ The card of the damage-map flight is re-rendered with a checkerboard face (100 m
 exposures, same EXIF and frame tags), mapped with no detections at 5 mm/px, and every 40 x 40 px
 block of the mosaic (2 x 2 squares) is compared with the true checkerboard at the same face points:
 the shift between them is read from the phases of the pattern's two fundamental components. The
-misregistration stays within MAX_SHIFT_PX (p95 of the blocks): the flight's geotag error (~1-2 cm)
-and the LiDAR range noise moving each image's plane, at 5 mm per mosaic pixel.
+misregistration (p95 of the blocks) stays within what the flight's poses allow: its geotag error p95
+(measured against the truth, ~2 cm) plus half the LiDAR's range noise (a range error moves a point
+seen 27 degrees off the axis, the image's edge, by half as much along the face), in mosaic pixels
+(5 mm): about 6 px. Measured: p50 ~1.8 px, p95 ~3.5 px.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from icgt.mapping.cli import run_map
 from icgt.mapping.place import Errors
 from icgt.mapping.pose import world_to_pixel
 from icgt.sim.camera_card import _image, read_frame_number
+from icgt.sim.map_truth import geotag_errors_m
 from icgt.sim.render import render
 from icgt.sim.surface import FaceFrame
 
@@ -33,7 +36,7 @@ from .conftest import DamageFlight
 
 MM_PER_PX = 5.0
 CHECKER_MM = 100.0
-MAX_SHIFT_PX = 4.0
+RANGE_NOISE_M = 0.025
 BLOCK = 40
 
 
@@ -93,11 +96,14 @@ def test_checkerboard_mosaic_lands_in_place(damage_flight: DamageFlight, tmp_pat
                 d.append(np.angle(np.sum(g * basis) * np.conj(np.sum(i * basis))) / k)
             ds, dt = (d[0] + d[1]) / 2.0, (d[0] - d[1]) / 2.0
             shifts.append(float(np.hypot(ds, dt)) * 1000.0 / MM_PER_PX)
+    frames = list(read(damage_flight.flight.mcap).frames())
+    geotag = geotag_errors_m(frames, damage_flight.flight.truth_exposures, damage_flight.scenario, res.session.origin)
+    max_shift_px = (float(np.percentile(geotag, 95)) + 0.5 * RANGE_NOISE_M) * 1000.0 / MM_PER_PX
     assert len(shifts) > 50
     p50, p95 = np.percentile(shifts, [50, 95])
     print(f"checkerboard mosaic misregistration: p50 {p50:.2f} px, p95 {p95:.2f} px, max {max(shifts):.2f} px "
-          f"at {MM_PER_PX} mm/px over {len(shifts)} blocks")  # fmt: skip
-    assert p95 <= MAX_SHIFT_PX
+          f"at {MM_PER_PX} mm/px over {len(shifts)} blocks; bound {max_shift_px:.2f} px")  # fmt: skip
+    assert p95 <= max_shift_px
 
 
 def test_world_to_pixel_inverts_pixel_to_world(damage_flight: DamageFlight, tmp_path: Path) -> None:

@@ -299,38 +299,6 @@ def _extent(text: str | None) -> tuple[float, float, float, float] | None:
     return (v[0], v[1], v[2], v[3])
 
 
-def add_map_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("log", type=Path, help="the recording (.mcap)")
-    p.add_argument("--images", type=Path, required=True, help="folder of the camera card's JPEGs (only read)")
-    p.add_argument("--detections", type=Path, action="append", required=True,
-                   help="COCO JSON, icgt-detections JSON or a folder of YOLO segment txt (repeatable)")  # fmt: skip
-    p.add_argument("--out", type=Path, required=True, help="output folder")
-    p.add_argument(
-        "--calibration", type=Path, help="camera calibration (.toml, OpenCV .yaml/.json); default: the log's"
-    )
-    p.add_argument(
-        "--plane", help="structure plane E,N,U,nE,nN,nU (recording ENU); default: fitted to the LiDAR ranges"
-    )
-    p.add_argument("--anchor", choices=("range", "structure"), default="range",
-                   help="range: each image's plane through its LiDAR return (default); structure: one")  # fmt: skip
-    p.add_argument("--classes", help="YOLO class names, comma-separated in class order")
-    p.add_argument(
-        "--tiles", type=Path, help="tiles.json of `icgt tiles`: detections on tiles map back to their images"
-    )
-    p.add_argument("--mm-per-px", type=float, default=2.0, help="mosaic resolution [mm/px] (default 2)")
-    p.add_argument("--no-mosaic", action="store_true", help="skip the mosaic")
-    p.add_argument("--extent", help="mosaic extent s0,t0,s1,t1 [face m] (default: every footprint)")
-    p.add_argument(
-        "--position-sigma-m", type=float, default=Errors.position_m, help="1-sigma camera position error [m]"
-    )
-    p.add_argument("--attitude-sigma-deg", type=float, default=Errors.attitude_deg, help="1-sigma attitude error [deg]")
-    p.add_argument("--range-sigma-m", type=float, default=Errors.range_m, help="1-sigma LiDAR range error [m]")
-    p.add_argument("--min-tolerance-mm", type=float, default=10.0, help="smallest merge distance [mm]")
-    p.add_argument("--cache-mb", type=float, default=512.0, help="decoded-image cache of the mosaic [MB]")
-    p.add_argument("--trust-flagged-poses", action="store_true",
-                   help="use frames flagged stale_pose/pose_extrapolated too (default: reported, unused)")  # fmt: skip
-
-
 def cmd_map(args: argparse.Namespace) -> int:
     result = run_map(
         Path(args.log), Path(args.images), [Path(d) for d in args.detections], Path(args.out),
@@ -360,17 +328,6 @@ def _count(instances: Sequence[Instance]) -> dict[str, int]:
 
 
 # --- icgt tiles -----------------------------------------------------------------------------
-
-
-def add_tiles_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("log", type=Path, help="the recording (.mcap): places every tile on the face")
-    p.add_argument("--images", type=Path, required=True, help="folder of the camera card's JPEGs (only read)")
-    p.add_argument("--out", type=Path, required=True, help="output folder for the tiles and tiles.json")
-    p.add_argument("--size", type=int, default=512, help="tile size [px] (default 512, the paper's)")
-    p.add_argument("--overlap", type=int, default=0, help="overlap of neighbouring tiles [px]")
-    p.add_argument("--calibration", type=Path)
-    p.add_argument("--plane")
-    p.add_argument("--anchor", choices=("range", "structure"), default="range")
 
 
 def run_tiles(

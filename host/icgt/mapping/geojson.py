@@ -13,7 +13,9 @@ RFC 7946 (whose coordinates are WGS84 only), and says so in its "icgt_face_frame
 
 from __future__ import annotations
 
+import itertools
 import json
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -26,6 +28,17 @@ from icgt.geodesy import LocalFrame
 from icgt.mapping import MappingError
 from icgt.mapping.model import CRACK, Instance, midpoint
 from icgt.mapping.surface import Face, face_wgs84
+
+
+def _signed_area(coords: list[list[float]]) -> float:
+    """Twice the signed area of a ring [lon, lat] in an equirectangular plane at its mean latitude
+    (> 0: counterclockwise), summed over the closed ring in absolute degrees, as readers compute it."""
+    ring = [*coords, coords[0]]
+    k = math.cos(math.radians(sum(c[1] for c in ring) / len(ring)))
+    a2 = 0.0
+    for (x0, y0), (x1, y1) in itertools.pairwise(ring):
+        a2 += x0 * k * y1 - x1 * k * y0
+    return a2
 
 
 def _props(inst: Instance, origin: LocalFrame) -> dict[str, Any]:
@@ -66,18 +79,15 @@ def features_wgs84(
     for inst in instances:
         lat, lon, alt = origin.enu_to_geodetic(inst.enu)
         pts = np.stack([np.atleast_1d(lon), np.atleast_1d(lat)], axis=1)
-        if inst.kind != CRACK:
-            # the right-hand rule in a local plane (x east scaled by cos(lat)); a ring on a vertical face
-            # has (almost) no area on the map, and whichever way it turns is kept consistent with it
-            x = (pts[:, 0] - pts[0, 0]) * np.cos(np.radians(pts[0, 1]))
-            y = pts[:, 1] - pts[0, 1]
-            signed = float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
-            if signed < 0:
-                pts, alt = pts[::-1], np.atleast_1d(alt)[::-1]
         coords = [[round(float(p[0]), 9), round(float(p[1]), 9)] for p in pts]
+        alts = [float(a) for a in np.atleast_1d(alt)]
+        if inst.kind != CRACK and _signed_area(coords) < 0:
+            # the right-hand rule, judged on the written (rounded) positions: a ring on a vertical face
+            # has almost no area on the map, and rounding alone could turn it the other way
+            coords, alts = coords[::-1], alts[::-1]
         if geoid_separation_m is not None:
-            for c, a in zip(coords, np.atleast_1d(alt), strict=True):
-                c.append(round(float(a) + geoid_separation_m, 3))
+            for c, a in zip(coords, alts, strict=True):
+                c.append(round(a + geoid_separation_m, 3))
         feats.append(
             {
                 "type": "Feature",

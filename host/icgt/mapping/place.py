@@ -24,6 +24,7 @@ import shapely
 from icgt.geometry import FrameSolution, GeometryError, Projector
 from icgt.geotag.record import FrameRecord
 from icgt.mapping import MappingError
+from icgt.mapping.args import ATTITUDE_SIGMA_DEG, POSITION_SIGMA_M, RANGE_SIGMA_M
 from icgt.mapping.model import CRACK, Detection, Placed
 from icgt.mapping.surface import Face
 
@@ -32,10 +33,10 @@ from icgt.mapping.surface import Face
 class Errors:
     """1-sigma errors of the inputs."""
 
-    position_m: float = 0.03
+    position_m: float = POSITION_SIGMA_M
     """Recorded camera positions (the autopilot's fused estimate; ~0.01 m with RTK)."""
-    attitude_deg: float = 0.3
-    range_m: float = 0.025
+    attitude_deg: float = ATTITUDE_SIGMA_DEG
+    range_m: float = RANGE_SIGMA_M
     """LIDAR-Lite v3: +-2.5 cm."""
     pixel_px: float = 1.0
     """A detector's localisation of a point, in image-file pixels."""

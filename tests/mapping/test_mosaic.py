@@ -105,6 +105,21 @@ def test_checkerboard_mosaic_lands_in_place(damage_flight: DamageFlight, tmp_pat
           f"at {MM_PER_PX} mm/px over {len(shifts)} blocks; bound {max_shift_px:.2f} px")  # fmt: skip
     assert p95 <= max_shift_px
 
+    # GDAL (rasterio) reads the PNG with its world file, and the GeoTIFF variant, as the same raster
+    import rasterio
+
+    with rasterio.open(res.mosaic.path) as ds:
+        assert ds.transform.a == pytest.approx(a) and ds.transform.e == pytest.approx(e)
+        assert ds.transform.c == pytest.approx(c - a / 2) and ds.transform.f == pytest.approx(f - e / 2)
+        assert np.array_equal(ds.read().transpose(1, 2, 0), rgb)
+    tif = run_map(damage_flight.flight.mcap, card, [empty], tmp_path / "map_tif", calibration=damage_flight.calibration,
+                  errors=Errors(position_m=0.015), mm_per_px=MM_PER_PX, mosaic_format="tif")  # fmt: skip
+    assert tif.mosaic is not None
+    with rasterio.open(tif.mosaic.path) as ds:
+        assert ds.driver == "GTiff" and ds.crs is None
+        assert ds.transform.c == pytest.approx(c - a / 2) and ds.transform.f == pytest.approx(f - e / 2)
+        assert np.array_equal(ds.read().transpose(1, 2, 0), rgb)
+
 
 def test_world_to_pixel_inverts_pixel_to_world(damage_flight: DamageFlight, tmp_path: Path) -> None:
     """The mosaic's projection (pose.py) is the exact inverse of the Projector's, distortion included."""

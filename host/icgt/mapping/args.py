@@ -32,6 +32,8 @@ def add_map_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--mm-per-px", type=float, default=2.0, help="mosaic resolution [mm/px] (default 2)")
     p.add_argument("--no-mosaic", action="store_true", help="skip the mosaic")
+    p.add_argument("--mosaic-format", choices=("png", "tif"), default="png",
+                   help="png (+ .pgw world file) or tif (tiled GeoTIFF); both in face metres")  # fmt: skip
     p.add_argument("--extent", help="mosaic extent s0,t0,s1,t1 [face m] (default: every footprint)")
     p.add_argument("--position-sigma-m", type=float, default=POSITION_SIGMA_M, help="1-sigma camera position error [m]")
     p.add_argument("--attitude-sigma-deg", type=float, default=ATTITUDE_SIGMA_DEG, help="1-sigma attitude error [deg]")

@@ -177,7 +177,10 @@ def run_map(
     min_tolerance_mm: float = 10.0,
     cache_mb: float = 512.0,
     trust_flagged: bool = False,
+    mosaic_format: str = "png",
 ) -> MapResult:
+    if mosaic_format not in ("png", "tif"):
+        raise MappingError(f"mosaic format must be png or tif, not {mosaic_format!r}")
     check_out_dir(out_dir, images_dir)
     ses = open_session(
         log_path, images_dir, calibration=calibration, plane=plane, anchor=anchor, trust_flagged=trust_flagged
@@ -219,7 +222,7 @@ def run_map(
     mosaic = None
     if mm_per_px is not None:
         mosaic = build_mosaic(
-            out_dir / "mosaic.png", mosaic_images(ses), ses.camera, ses.face, mm_per_px, instances,
+            out_dir / f"mosaic.{mosaic_format}", mosaic_images(ses), ses.camera, ses.face, mm_per_px, instances,
             extent=extent, cache_mb=cache_mb,
         )  # fmt: skip
     ses.problems.write_csv(out_dir / "problems.csv")
@@ -233,7 +236,8 @@ def run_map(
         "errors_1sigma": dataclasses.asdict(errors),
         "mosaic": None if mosaic is None else {
             "file": mosaic.path.name, "width_px": mosaic.width_px, "height_px": mosaic.height_px,
-            "mm_per_px": mosaic.mm_per_px, "extent_face_m": mosaic.extent, "world_file": "mosaic.pgw",
+            "mm_per_px": mosaic.mm_per_px, "extent_face_m": mosaic.extent,
+            "world_file": "mosaic.pgw" if mosaic_format == "png" else None,
             "images_used": mosaic.images_used, "covered_fraction": round(mosaic.covered_fraction, 4),
         },
     }  # fmt: skip
@@ -307,6 +311,7 @@ def cmd_map(args: argparse.Namespace) -> int:
         errors=Errors(args.position_sigma_m, args.attitude_sigma_deg, args.range_sigma_m),
         mm_per_px=None if args.no_mosaic else args.mm_per_px, extent=_extent(args.extent),
         min_tolerance_mm=args.min_tolerance_mm, cache_mb=args.cache_mb, trust_flagged=args.trust_flagged_poses,
+        mosaic_format=args.mosaic_format,
     )  # fmt: skip
     kinds = ", ".join(f"{n} {k}" for k, n in sorted(_count(result.instances).items())) or "none"
     print(

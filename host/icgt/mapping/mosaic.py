@@ -9,9 +9,10 @@ Pillow's draft mode: 1/2, 1/4 or 1/8), through a cache bounded in bytes. The PNG
 row as the strips come (pypng), so memory is bounded by the strip and the cache, not by the number
 or the size of the images.
 
-Outputs: mosaic.png (RGB, 8 bit; uncovered pixels black), mosaic.pgw (an ESRI world file in face
-metres: GDAL/QGIS place the PNG in the face frame with it), defects drawn on top (cracks red, area
-defects orange, with their ids).
+Outputs: mosaic.png (RGB, 8 bit; uncovered pixels black) with mosaic.pgw (an ESRI world file in face
+metres: GDAL/QGIS place the PNG in the face frame with it), or mosaic.tif (a tiled GeoTIFF with the
+same transform, written window by window through rasterio/GDAL), defects drawn on top (cracks red,
+area defects orange, with their ids).
 """
 
 from __future__ import annotations
@@ -153,7 +154,7 @@ def build_mosaic(
     used: set[Path] = set()
     covered = 0
 
-    def strips() -> Iterator[np.ndarray]:
+    def strips() -> Iterator[tuple[int, np.ndarray]]:
         nonlocal covered
         cols: FloatArray = s0 + (np.arange(width, dtype=np.float64) + 0.5) * res
         for row0 in range(0, height, strip_rows):
@@ -202,19 +203,66 @@ def build_mosaic(
             strip = Image.fromarray(np.clip(np.rint(rgb), 0, 255).astype(np.uint8), mode="RGB")
             if instances:
                 _draw(strip, instances, s0, t1, res, row0)
-            arr8 = np.asarray(strip)
-            yield from arr8.reshape(n, width * 3)
+            yield row0, np.asarray(strip)
 
-    try:
-        with out_png.open("wb") as fh:
-            png.Writer(width=width, height=height, greyscale=False, bitdepth=8, compression=6).write(fh, strips())
-    except OSError as exc:
-        raise MappingError(f"cannot write {out_png}: {exc.strerror or exc}") from exc
-    _world_file(out_png.with_suffix(".pgw"), res, s0 + res / 2, t1 - res / 2)
-    _check_png(out_png, width, height)
+    if out_png.suffix.lower() in (".tif", ".tiff"):
+        _write_geotiff(out_png, width, height, res, s0, t1, strips(), strip_rows)
+    else:
+        _write_png(out_png, width, height, strips())
+        _world_file(out_png.with_suffix(".pgw"), res, s0 + res / 2, t1 - res / 2)
+        _check_png(out_png, width, height)
     return MosaicInfo(
         out_png, width, height, mm_per_px, (s0, t0, s1, t1), len(used), cache.decodes, covered / (width * height)
     )
+
+
+def _write_png(path: Path, width: int, height: int, strips: Iterator[tuple[int, np.ndarray]]) -> None:
+    def rows() -> Iterator[np.ndarray]:
+        for _, strip in strips:
+            yield from strip.reshape(strip.shape[0], width * 3)
+
+    try:
+        with path.open("wb") as fh:
+            png.Writer(width=width, height=height, greyscale=False, bitdepth=8, compression=6).write(fh, rows())
+    except OSError as exc:
+        raise MappingError(f"cannot write {path}: {exc.strerror or exc}") from exc
+
+
+def _write_geotiff(
+    path: Path,
+    width: int,
+    height: int,
+    res: float,
+    s0: float,
+    t1: float,
+    strips: Iterator[tuple[int, np.ndarray]],
+    strip_rows: int,
+) -> None:
+    """A tiled, deflate-compressed GeoTIFF written strip by strip (GDAL through rasterio).
+
+    Its transform is in face metres (s right, t up) and it has no CRS: the face is a local
+    engineering frame (map.json describes it), not a map projection.
+    """
+    import rasterio
+    from rasterio.errors import RasterioError
+    from rasterio.transform import Affine
+    from rasterio.windows import Window
+
+    profile = {
+        "driver": "GTiff", "width": width, "height": height, "count": 3, "dtype": "uint8",
+        "transform": Affine(res, 0.0, s0, 0.0, -res, t1), "tiled": True, "blockxsize": 256,
+        "blockysize": 256 if strip_rows % 256 == 0 else 16, "compress": "deflate", "photometric": "RGB",
+        "BIGTIFF": "IF_SAFER",
+    }  # fmt: skip
+    try:
+        with rasterio.open(path, "w", **profile) as ds:
+            for row0, strip in strips:
+                ds.write(strip.transpose(2, 0, 1), window=Window(0, row0, width, strip.shape[0]))
+        with rasterio.open(path) as ds:
+            if (ds.width, ds.height, ds.count) != (width, height, 3):
+                raise MappingError(f"{path}: reads back as {ds.width}x{ds.height}x{ds.count}")
+    except RasterioError as exc:
+        raise MappingError(f"cannot write {path}: {exc}") from exc
 
 
 def _world_file(path: Path, res: float, s_centre: float, t_centre: float) -> None:

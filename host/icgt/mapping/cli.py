@@ -104,7 +104,8 @@ def open_session(
     origin = LocalFrame(*enu) if enu is not None else origin_from_frames(frames)
     if origin is None:
         raise MappingError(f"{log_path}: no frame has both a WGS84 and an ENU position: the map cannot be placed")
-    face = find_face(camera, frames, plane=plane, normal=surface_normal_from_metadata(recording.metadata))
+    trusted = [f for f in frames if trust_flagged or not any(flag.value in f.flags for flag in UNTRUSTED_POSE)]
+    face = find_face(camera, trusted, plane=plane, normal=surface_normal_from_metadata(recording.metadata))
     if anchor not in ("range", "structure"):
         raise MappingError(f"--anchor must be range or structure, not {anchor!r}")
     projector = Projector(

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from icgt.geodesy import FloatArray, LocalFrame
-from icgt.geometry import CameraModel, GeometryError, Plane, Projector, plane_axes
+from icgt.geometry import CameraModel, GeometryError, Plane, Projector, SurfaceSource, plane_axes
 from icgt.geotag.record import FrameRecord
 from icgt.mapping import MappingError
 
@@ -70,12 +70,11 @@ def lidar_returns(camera: CameraModel, frames: Sequence[FrameRecord]) -> tuple[F
     """(LiDAR return points (N, 3), camera centres (N, 3)) in recording ENU [m], frames with a valid range."""
     proj = Projector(camera)  # no surface: perpendicular at range, whose plane point is the return
     pts, cams = [], []
-    for rec, sol in zip(frames, proj.solve_many(list(frames)), strict=True):
-        if isinstance(sol, GeometryError) or sol.surface.value != "perpendicular_at_range":
+    for sol in proj.solve_many(list(frames)):
+        if isinstance(sol, GeometryError) or sol.surface is not SurfaceSource.PERPENDICULAR_AT_RANGE:
             continue
         pts.append(sol.plane.point)
         cams.append(sol.camera_enu)
-        del rec
     return np.asarray(pts, dtype=np.float64).reshape(-1, 3), np.asarray(cams, dtype=np.float64).reshape(-1, 3)
 
 

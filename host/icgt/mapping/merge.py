@@ -64,10 +64,9 @@ def _tolerance_m(a: Placed, b: Placed, min_tol_mm: float) -> float:
     return max(3.0 * math.hypot(a.sigma_pos_mm, b.sigma_pos_mm) + width, min_tol_mm) / 1000.0
 
 
-def _cracks_linked(a: Placed, b: Placed, la: shapely.LineString, lb: shapely.LineString, tol: float) -> bool:
-    ra, rb = resample(a.face), resample(b.face)
-    near_a = shapely.distance(shapely.points(ra), lb) <= tol
-    near_b = shapely.distance(shapely.points(rb), la) <= tol
+def _cracks_linked(sa: np.ndarray, sb: np.ndarray, la: shapely.LineString, lb: shapely.LineString, tol: float) -> bool:
+    near_a = shapely.distance(sa, lb) <= tol
+    near_b = shapely.distance(sb, la) <= tol
     shorter = min(la.length, lb.length)
     along = max(near_a.sum(), near_b.sum()) * STEP_M
     if along >= min(0.5 * shorter, 0.05):
@@ -91,17 +90,18 @@ def _geometry(p: Placed) -> shapely.Geometry:
 def group(placed: Sequence[Placed], *, min_tolerance_mm: float = 10.0) -> list[list[int]]:
     """Indices of the detections of each defect (clusters), in order of their first detection."""
     geoms = [_geometry(p) for p in placed]
+    samples = [shapely.points(resample(p.face)) if p.det.kind == CRACK else None for p in placed]
     uf = _UnionFind(len(placed))
     if placed:
         tree = STRtree(geoms)
         max_tol = max(_tolerance_m(p, p, min_tolerance_mm) for p in placed)
         left, right = tree.query(geoms, predicate="dwithin", distance=max_tol)
         for i, j in zip(left.tolist(), right.tolist(), strict=True):
-            if j <= i or placed[i].det.kind != placed[j].det.kind:
-                continue
+            if j <= i or placed[i].det.kind != placed[j].det.kind or uf.find(i) == uf.find(j):
+                continue  # (links are transitive: a pair already joined needs no test)
             tol = _tolerance_m(placed[i], placed[j], min_tolerance_mm)
             if placed[i].det.kind == CRACK:
-                linked = _cracks_linked(placed[i], placed[j], geoms[i], geoms[j], tol)
+                linked = _cracks_linked(samples[i], samples[j], geoms[i], geoms[j], tol)
             else:
                 linked = _areas_linked(geoms[i], geoms[j], tol)
             if linked:

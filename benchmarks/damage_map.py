@@ -65,7 +65,6 @@ def accuracy(regenerate: bool) -> bool:
     from mapping.conftest import read_exposures
 
     from icgt.geometry import Projector
-    from icgt.ingest import read
     from icgt.mapping.cli import run_map
     from icgt.mapping.model import CRACK, midpoint
     from icgt.mapping.place import Errors
@@ -82,7 +81,7 @@ def accuracy(regenerate: bool) -> bool:
     write_polylines(base / "detections.json", dets)
     t0 = time.perf_counter()
     res = run_map(mcap, card, [base / "detections.json"], base / "map", calibration=sim / "camera_calibration.toml",
-                  errors=Errors(position_m=0.015), mm_per_px=2.0)  # fmt: skip
+                  errors=Errors(position_m=0.015), mm_per_px=2.0, lookahead_s=1.0)  # fmt: skip
     t_map = time.perf_counter() - t0
     ses = res.session
     truth = load_truth(sim / "truth_defects.json", ses.origin)
@@ -104,7 +103,7 @@ def accuracy(regenerate: bool) -> bool:
             w = paper_proj.pixel_to_world(rec, px[:, 0], px[:, 1])
             area = shapely.Polygon(w.plane_st).area * 1e6
             paper.append(MappedItem(p.det.kind, w.enu.mean(axis=0), None, area))
-    geotag = geotag_errors_m(list(read(mcap).frames()), sim / "truth_exposures.jsonl", sc, ses.origin)
+    geotag = geotag_errors_m(ses.frames, sim / "truth_exposures.jsonl", sc, ses.origin)
     g95 = float(np.percentile(geotag, 95))
     bound = (g95 + RANGE_NOISE_M) * 1000.0
     n_cracks = sum(1 for t in truth if t.kind == CRACK)
@@ -248,7 +247,7 @@ def one_hour(regenerate: bool) -> None:
     proc = subprocess.run(
         [sys.executable, "-m", "icgt.cli", "map", str(out / "flight.mcap"), "--images", str(out / "card"),
          "--detections", str(out / "detections.json"), "--out", str(out / "map"), "--plane", "0,2.5,0,0,-1,0",
-         "--position-sigma-m", "0.01", "--mm-per-px", "10"],
+         "--position-sigma-m", "0.01", "--mm-per-px", "10", "--cache-mb", "256"],
         capture_output=True, text=True, check=False,
     )  # fmt: skip
     wall = time.perf_counter() - t0

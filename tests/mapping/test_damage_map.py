@@ -21,12 +21,11 @@ import pytest
 import shapely
 
 from icgt.geometry import Projector
-from icgt.ingest import read
 from icgt.mapping.cli import MapResult, run_map
 from icgt.mapping.place import Errors
 from icgt.sim.map_truth import MappedItem, compare, geotag_errors_m, load_truth, p50_p95
 
-from .conftest import DamageFlight
+from .conftest import LOOKAHEAD_S, DamageFlight
 
 _spec = importlib.util.spec_from_file_location(
     "geojson_rules", Path(__file__).parents[1] / "export" / "geojson_rules.py"
@@ -41,8 +40,14 @@ RANGE_NOISE_M = 0.025
 
 def _run(df: DamageFlight, det: str, out: Path, **kw: object) -> MapResult:
     return run_map(
-        df.flight.mcap, df.flight.card, [df.det_dir / det], out, calibration=df.calibration, errors=ERRORS, **kw
-    )  # type: ignore[arg-type]
+        df.flight.mcap, df.flight.card, [df.det_dir / det], out, calibration=df.calibration, errors=ERRORS,
+        lookahead_s=LOOKAHEAD_S, **kw,
+    )  # type: ignore[arg-type]  # fmt: skip
+
+
+def _untrusted_images(result: MapResult) -> set[str]:
+    """Images whose frame's pose the map refused (still stale offline: reported, not used)."""
+    return {name for name, (_, rec) in result.session.images.items() if rec.frame_seq not in result.session.solutions}
 
 
 def _items(result: MapResult) -> list[MappedItem]:
@@ -69,7 +74,9 @@ def test_detections_give_back_the_true_defects(
     damage_flight: DamageFlight, poly_result: MapResult, det: str, tmp_path: Path
 ) -> None:
     result = poly_result if det == "polylines.json" else _run(damage_flight, det, tmp_path / "out", mm_per_px=None)
-    assert not result.unplaced, result.unplaced[:3]
+    untrusted = _untrusted_images(result)
+    assert len(untrusted) <= 0.1 * len(result.session.images)
+    assert all(d.image in untrusted and "trusted pose" in why for d, why in result.unplaced), result.unplaced[:3]
     assert len(result.detections) == len(damage_flight.detections)
     origin = result.session.origin
     truth = load_truth(damage_flight.truth, origin)
@@ -78,12 +85,12 @@ def test_detections_give_back_the_true_defects(
     # every defect lists exactly the images the detector saw it in
     for t in truth:
         (k,) = cmp.assignment[t.id]
-        seen = {d.image for d in damage_flight.detections if d.defect_id == t.id}
+        seen = {d.image for d in damage_flight.detections if d.defect_id == t.id} - untrusted
         assert result.instances[k].images == sorted(seen), t.id
         assert len(seen) >= 3, t.id  # the flight sees every defect several times
     _, len_p95 = p50_p95(cmp.length_err_pct)
     assert len_p95 <= 5.0, cmp.length_err_pct
-    frames = list(read(damage_flight.flight.mcap).frames())
+    frames = result.session.frames  # as the map used them (re-geotagged)
     geotag = geotag_errors_m(frames, damage_flight.flight.truth_exposures, damage_flight.scenario, origin)
     bound_mm = (float(np.percentile(geotag, 95)) + RANGE_NOISE_M) * 1000.0
     _, pos_p95 = p50_p95(cmp.position_err_mm)
@@ -153,7 +160,7 @@ def test_geojson_reads_back_with_gdal_and_follows_rfc7946(poly_result: MapResult
     import csv
 
     table = list(csv.DictReader((out / "detections.csv").open()))
-    assert all(r["instance"] and not r["not_placed_because"] for r in table)
+    assert all(bool(r["instance"]) != bool(r["not_placed_because"]) for r in table)
     assert {r["instance"] for r in table} == {i.id for i in poly_result.instances}
 
 
@@ -164,12 +171,13 @@ def test_tiles_map_back(damage_flight: DamageFlight, tmp_path: Path) -> None:
 
     tiles_dir = tmp_path / "tiles"
     rows = run_tiles(
-        damage_flight.flight.mcap, damage_flight.flight.card, tiles_dir, calibration=damage_flight.calibration
-    )
+        damage_flight.flight.mcap, damage_flight.flight.card, tiles_dir, calibration=damage_flight.calibration,
+        lookahead_s=LOOKAHEAD_S,
+    )  # fmt: skip
     index = json.loads((tiles_dir / "tiles.json").read_text())
     assert index["tile_size_px"] == 512 and len(index["tiles"]) == len(rows)
     assert all((tiles_dir / r["tile"]).is_file() for r in rows)
-    assert all(r["corners_face_m"] is not None for r in rows)
+    assert sum(r["corners_face_m"] is None for r in rows) <= 0.1 * len(rows)  # only frames with an untrusted pose
     # cut every detection at its image's tile borders, as a tile detector would see it
     from dataclasses import replace
 
@@ -191,8 +199,9 @@ def test_tiles_map_back(damage_flight: DamageFlight, tmp_path: Path) -> None:
     result = run_map(
         damage_flight.flight.mcap, damage_flight.flight.card, [tmp_path / "tiled.json"], tmp_path / "map",
         calibration=damage_flight.calibration, errors=ERRORS, tiles=tiles_dir / "tiles.json", mm_per_px=None,
+        lookahead_s=LOOKAHEAD_S,
     )  # fmt: skip
-    assert not result.unplaced
+    assert all(d.image in _untrusted_images(result) for d, _ in result.unplaced)
     cmp = compare(load_truth(damage_flight.truth, result.session.origin), _items(result))
     assert cmp.count_exact, (cmp.reported, cmp.truth, cmp.missed)
     assert p50_p95(cmp.length_err_pct)[1] <= 5.0

@@ -32,7 +32,7 @@ from icgt.sim.map_truth import geotag_errors_m
 from icgt.sim.render import render
 from icgt.sim.surface import FaceFrame
 
-from .conftest import DamageFlight
+from .conftest import LOOKAHEAD_S, DamageFlight
 
 MM_PER_PX = 5.0
 CHECKER_MM = 100.0
@@ -59,7 +59,7 @@ def test_checkerboard_mosaic_lands_in_place(damage_flight: DamageFlight, tmp_pat
     empty = tmp_path / "none.json"
     empty.write_text(json.dumps({"format": "icgt-detections", "images": {}}))
     res = run_map(damage_flight.flight.mcap, card, [empty], tmp_path / "map", calibration=damage_flight.calibration,
-                  errors=Errors(position_m=0.015), mm_per_px=MM_PER_PX)  # fmt: skip
+                  errors=Errors(position_m=0.015), mm_per_px=MM_PER_PX, lookahead_s=LOOKAHEAD_S)  # fmt: skip
     assert res.mosaic is not None and res.instances == []
     w, h, rows, _ = png.Reader(filename=str(res.mosaic.path)).asRGB8()
     rgb = np.vstack([np.frombuffer(r, dtype=np.uint8) for r in rows]).reshape(h, w, 3)
@@ -96,7 +96,7 @@ def test_checkerboard_mosaic_lands_in_place(damage_flight: DamageFlight, tmp_pat
                 d.append(np.angle(np.sum(g * basis) * np.conj(np.sum(i * basis))) / k)
             ds, dt = (d[0] + d[1]) / 2.0, (d[0] - d[1]) / 2.0
             shifts.append(float(np.hypot(ds, dt)) * 1000.0 / MM_PER_PX)
-    frames = list(read(damage_flight.flight.mcap).frames())
+    frames = res.session.frames
     geotag = geotag_errors_m(frames, damage_flight.flight.truth_exposures, damage_flight.scenario, res.session.origin)
     max_shift_px = (float(np.percentile(geotag, 95)) + 0.5 * RANGE_NOISE_M) * 1000.0 / MM_PER_PX
     assert len(shifts) > 50
@@ -113,7 +113,8 @@ def test_checkerboard_mosaic_lands_in_place(damage_flight: DamageFlight, tmp_pat
         assert ds.transform.c == pytest.approx(c - a / 2) and ds.transform.f == pytest.approx(f - e / 2)
         assert np.array_equal(ds.read().transpose(1, 2, 0), rgb)
     tif = run_map(damage_flight.flight.mcap, card, [empty], tmp_path / "map_tif", calibration=damage_flight.calibration,
-                  errors=Errors(position_m=0.015), mm_per_px=MM_PER_PX, mosaic_format="tif")  # fmt: skip
+                  errors=Errors(position_m=0.015), mm_per_px=MM_PER_PX, mosaic_format="tif",
+                  lookahead_s=LOOKAHEAD_S)  # fmt: skip
     assert tif.mosaic is not None
     with rasterio.open(tif.mosaic.path) as ds:
         assert ds.driver == "GTiff" and ds.crs is None

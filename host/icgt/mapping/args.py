@@ -40,6 +40,8 @@ def add_map_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--range-sigma-m", type=float, default=RANGE_SIGMA_M, help="1-sigma LiDAR range error [m]")
     p.add_argument("--min-tolerance-mm", type=float, default=10.0, help="smallest merge distance [mm]")
     p.add_argument("--cache-mb", type=float, default=512.0, help="decoded-image cache of the mosaic [MB]")
+    p.add_argument("--recompute-lookahead-s", type=float, metavar="S",
+                   help="geotag the frames again from the raw streams with S s of look-ahead (<= 2)")  # fmt: skip
     p.add_argument("--trust-flagged-poses", action="store_true",
                    help="use frames flagged stale_pose/pose_extrapolated too (default: reported, unused)")  # fmt: skip
 
@@ -53,3 +55,4 @@ def add_tiles_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--calibration", type=Path)
     p.add_argument("--plane")
     p.add_argument("--anchor", choices=("range", "structure"), default="range")
+    p.add_argument("--recompute-lookahead-s", type=float, metavar="S", help="as for icgt map")

@@ -88,13 +88,24 @@ def open_session(
     anchor: str,
     geoid: float | str | None = "auto",
     trust_flagged: bool = False,
+    lookahead_s: float | None = None,
 ) -> Session:
     from icgt.ingest import read
 
     if not images_dir.is_dir():
         raise MappingError(f"--images {images_dir}: not a folder")
     recording = read(log_path)
-    frames = list(recording.frames())
+    if lookahead_s is None:
+        frames = list(recording.frames())
+    else:
+        # geotag again offline with the pose and clock samples that came after each exposure too
+        # (the recorder, live, had to extrapolate when they were late: frames flagged stale_pose)
+        from icgt.ingest.recompute import recompute
+
+        redone = recompute(recording, lookahead_s=lookahead_s)
+        for note in redone.notes:
+            log.info("recompute: %s", note)
+        frames = sorted(redone.frames, key=lambda f: f.frame_seq)
     if not frames:
         raise MappingError(f"{log_path}: the recording has no frames")
     camera = load_calibration(calibration) if calibration is not None else camera_from_metadata(recording.metadata)
@@ -179,13 +190,15 @@ def run_map(
     cache_mb: float = 512.0,
     trust_flagged: bool = False,
     mosaic_format: str = "png",
+    lookahead_s: float | None = None,
 ) -> MapResult:
     if mosaic_format not in ("png", "tif"):
         raise MappingError(f"mosaic format must be png or tif, not {mosaic_format!r}")
     check_out_dir(out_dir, images_dir)
     ses = open_session(
-        log_path, images_dir, calibration=calibration, plane=plane, anchor=anchor, trust_flagged=trust_flagged
-    )
+        log_path, images_dir, calibration=calibration, plane=plane, anchor=anchor, trust_flagged=trust_flagged,
+        lookahead_s=lookahead_s,
+    )  # fmt: skip
     index = load_index(tiles) if tiles is not None else {}
     stem_map = {p.stem: name for name, (p, _) in ses.images.items()} | stems(index)
 
@@ -312,7 +325,7 @@ def cmd_map(args: argparse.Namespace) -> int:
         errors=Errors(args.position_sigma_m, args.attitude_sigma_deg, args.range_sigma_m),
         mm_per_px=None if args.no_mosaic else args.mm_per_px, extent=_extent(args.extent),
         min_tolerance_mm=args.min_tolerance_mm, cache_mb=args.cache_mb, trust_flagged=args.trust_flagged_poses,
-        mosaic_format=args.mosaic_format,
+        mosaic_format=args.mosaic_format, lookahead_s=args.recompute_lookahead_s,
     )  # fmt: skip
     kinds = ", ".join(f"{n} {k}" for k, n in sorted(_count(result.instances).items())) or "none"
     print(
@@ -339,9 +352,12 @@ def _count(instances: Sequence[Instance]) -> dict[str, int]:
 def run_tiles(
     log_path: Path, images_dir: Path, out_dir: Path, *, size: int = 512, overlap: int = 0,
     calibration: Path | None = None, plane: Plane | None = None, anchor: str = "range",
+    lookahead_s: float | None = None,
 ) -> list[dict[str, Any]]:  # fmt: skip
     check_out_dir(out_dir, images_dir)
-    ses = open_session(log_path, images_dir, calibration=calibration, plane=plane, anchor=anchor)
+    ses = open_session(
+        log_path, images_dir, calibration=calibration, plane=plane, anchor=anchor, lookahead_s=lookahead_s
+    )
     rows: list[dict[str, Any]] = []
     for name, (path, rec) in sorted(ses.images.items()):
         w, _h = ses.size(name)
@@ -373,6 +389,7 @@ def cmd_tiles(args: argparse.Namespace) -> int:
     rows = run_tiles(
         Path(args.log), Path(args.images), Path(args.out), size=args.size, overlap=args.overlap,
         calibration=args.calibration, plane=parse_plane(args.plane) if args.plane else None, anchor=args.anchor,
+        lookahead_s=args.recompute_lookahead_s,
     )  # fmt: skip
     print(f"{len(rows)} tiles of {args.size} px written to {args.out} (tiles.json maps them back)")
     return 0

@@ -200,7 +200,9 @@ def build_instances(
         truncated = all(m.truncated for m in members)
         if kind == CRACK:
             face, enu = fuse_crack(members)
-            length = float(np.sum(np.linalg.norm(np.diff(enu, axis=0), axis=1)) * 1000.0)
+            # along the face: the detections' points scatter along the normal by each image's range
+            # error (each image has its own plane through its LiDAR return), which is no length
+            length = float(np.sum(np.linalg.norm(np.diff(face, axis=0), axis=1)) * 1000.0)
             widths = [m.width_mm for m in members if m.width_mm is not None]
             sig = [m.sigma_len_mm for m in members if m.sigma_len_mm is not None]
             out.append(

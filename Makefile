@@ -85,6 +85,7 @@ bench: venv build
 	$(PY) benchmarks/recorder_flight.py --scenario deck_pass --out bench-out/recorder
 	$(PY) benchmarks/geotag_write.py
 	$(PY) benchmarks/recorder_cpu.py --out bench-out/recorder_cpu
+	$(PY) benchmarks/damage_map.py --skip-1h
 
 clean:
 	rm -rf build $(VENV) demo-out

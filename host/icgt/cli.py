@@ -144,6 +144,18 @@ def _cmd_export(args: argparse.Namespace) -> int:
     return cmd_export(args)
 
 
+def _cmd_map(args: argparse.Namespace) -> int:
+    from icgt.mapping.cli import cmd_map
+
+    return cmd_map(args)
+
+
+def _cmd_tiles(args: argparse.Namespace) -> int:
+    from icgt.mapping.cli import cmd_tiles
+
+    return cmd_tiles(args)
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from icgt.demo import run_demo
 
@@ -229,6 +241,15 @@ def build_parser() -> argparse.ArgumentParser:
     info = sub.add_parser("info", help="a recording's summary in the terminal")
     add_info_arguments(info)
     info.set_defaults(func=cmd_info)
+
+    from icgt.mapping.args import add_map_arguments, add_tiles_arguments
+
+    mapping = sub.add_parser("map", help="place detections on the structure, merge them, write GeoJSON and a mosaic")
+    add_map_arguments(mapping)
+    mapping.set_defaults(func=_cmd_map)
+    tiles = sub.add_parser("tiles", help="cut the card's images into 512 px detector tiles placed on the face")
+    add_tiles_arguments(tiles)
+    tiles.set_defaults(func=_cmd_tiles)
 
     demo = sub.add_parser("demo", help="the main job on simulated hardware, with a summary against truth")
     demo.add_argument("--scenario", default="pier_scan")

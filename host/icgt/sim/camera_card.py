@@ -6,7 +6,9 @@ included; a missed trigger has no exposure and so no file), numbered from the sc
 from the camera's own clock at the start of the exposure, truncated to 1 s, and with 10 ms
 resolution also SubSecTimeOriginal/SubSecTimeDigitized ("00".."99"). The frame number is written
 into the pixels twice: as text, and as 16 black/white 8x8 blocks along the top (bit 15 first)
-that survive JPEG compression (`read_frame_number`).
+that survive JPEG compression (`read_frame_number`). With a scenario that has a `[surface]`,
+the image is the face as the exposure saw it (icgt.sim.render, `surface.render_width_px` wide)
+with the same tag over its top-left corner; otherwise a 64x48 grey tag.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from pathlib import Path
 
 from PIL import Image, ImageDraw
 
-from icgt.sim.scenario import Camera, SimError
+from icgt.sim.scenario import Camera, Scenario, SimError
 from icgt.sim.truth import ClockMaps, ExposureTruth, exif_strings
 
 IMAGE_SIZE_PX = (64, 48)
@@ -37,8 +39,8 @@ def file_name(file_number: int) -> str:
     return f"DSC{file_number:05d}.JPG"
 
 
-def _image(frame_number: int) -> Image.Image:
-    img = Image.new("RGB", IMAGE_SIZE_PX, (96, 96, 96))
+def _image(frame_number: int, base: Image.Image | None = None) -> Image.Image:
+    img = base if base is not None else Image.new("RGB", IMAGE_SIZE_PX, (96, 96, 96))
     draw = ImageDraw.Draw(img)
     for bit in range(_BITS):
         on = (frame_number >> (_BITS - 1 - bit)) & 1
@@ -70,6 +72,7 @@ def write_card(
     *,
     omit_exif_time: Collection[int] = (),
     quality: int = 90,
+    scenario: Scenario | None = None,
 ) -> list[Path]:
     """Write one JPEG per exposure into card_dir (created if needed); returns the paths in order.
 
@@ -86,7 +89,12 @@ def write_card(
         number = camera.first_file_number + e.frame_number - 1
         if number > 99_999:
             raise SimError(f"frame {e.frame_number}: file number {number} exceeds DSC99999")
-        img = _image(e.frame_number)
+        base = None
+        if scenario is not None and scenario.surface is not None:
+            from icgt.sim.render import render
+
+            base = render(scenario, scenario.surface, e)
+        img = _image(e.frame_number, base)
         exif = img.getexif()
         exif[_TAG_MAKE] = camera.make
         exif[_TAG_MODEL] = camera.model

@@ -30,10 +30,13 @@ import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, NoReturn, TypeAlias
+from typing import TYPE_CHECKING, Any, Literal, NoReturn, TypeAlias
 
 from icgt.errors import IcgtError
 from icgt.sim.profiles import IDEAL_RATES_HZ, PROFILE_NAMES, PROFILES
+
+if TYPE_CHECKING:
+    from icgt.sim.surface import Surface
 
 Vec3: TypeAlias = tuple[float, float, float]
 Window: TypeAlias = tuple[float, float]
@@ -217,6 +220,12 @@ class Camera:
     shutter_jitter_us: int = 2_000
     first_file_number: int = 1
     """Number of the first file on the card (DSC00001.JPG for 1)."""
+    k1: float = 0.0
+    """Lens distortion of the rendered images (Brown-Conrady, OpenCV's k1 k2 p1 p2 k3; icgt.geometry)."""
+    k2: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    k3: float = 0.0
     capture: Capture = field(default_factory=Capture)
 
     def footprint_m(self, distance_m: float) -> tuple[float, float]:
@@ -384,6 +393,8 @@ class Scenario:
     clocks: Clocks = field(default_factory=Clocks)
     link: Link = field(default_factory=Link)
     faults: Faults = field(default_factory=Faults)
+    surface: Surface | None = None
+    """The face's texture and defects for rendered camera images (icgt.sim.surface); None: tag images."""
     source: str = "<memory>"
     """Where the scenario was read from (for messages)."""
 
@@ -634,6 +645,11 @@ def _read_camera(r: _Reader) -> Camera:
         shutter_latency_us=r.integer("shutter_latency_us", 48_000, min_value=0),
         shutter_jitter_us=r.integer("shutter_jitter_us", 2_000, min_value=0),
         first_file_number=r.integer("first_file_number", 1, min_value=1, max_value=99_999),
+        k1=r.number("k1", 0.0, min_value=-1.0, max_value=1.0),
+        k2=r.number("k2", 0.0, min_value=-1.0, max_value=1.0),
+        p1=r.number("p1", 0.0, min_value=-0.1, max_value=0.1),
+        p2=r.number("p2", 0.0, min_value=-0.1, max_value=0.1),
+        k3=r.number("k3", 0.0, min_value=-1.0, max_value=1.0),
         capture=capture,
     )
     r.finish()
@@ -787,6 +803,12 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<memory>") -> Scenari
         autopilot_link_drops_s=f.pairs("autopilot_link_drops_s", second_after_first=True),
     )
     f.finish()
+    surface = None
+    if r.has("surface"):
+        from icgt.sim.surface import check_surface, parse_surface
+
+        surface = parse_surface(r.table("surface"))
+        check_surface(surface, source)
     r.finish()
     return Scenario(
         name=name,
@@ -803,6 +825,7 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<memory>") -> Scenari
         clocks=clocks,
         link=link,
         faults=faults,
+        surface=surface,
         source=source,
     )
 

@@ -171,7 +171,7 @@ def ours_offline_cpu_percent(inputs: list[tuple[int, str, Any]], flight_s: float
     frames every 10 ms of flight time) and the MAVLink parser, without threads or links."""
     from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-    from icgt.mavlink.link import Received
+    from icgt.mavlink.link import MavlinkMessage
     from icgt.protocol import StreamDecoder, encode_frame
     from icgt.recorder import Recorder
     from icgt.recorder.config import RecorderConfig
@@ -190,7 +190,7 @@ def ours_offline_cpu_percent(inputs: list[tuple[int, str, Any]], flight_s: float
     for t, kind, b in framed:
         if kind == "mavlink":
             for msg in parser.parse_buffer(b) or []:
-                rec._handle((_MAVLINK, Received(msg, t), t))
+                rec._handle((_MAVLINK, MavlinkMessage(msg, t), t))
         else:
             for received in dec.feed(b):
                 rec._handle((_DEVICE, received, t))

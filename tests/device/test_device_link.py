@@ -37,7 +37,7 @@ from typing import Any
 import pytest
 from cobs import cobs
 
-from icgt.device.link import CommandRefusedError, DeviceLink, DeviceLinkError, LinkEvent, TimeSyncSample
+from icgt.device.link import CommandRefusedError, DeviceLink, DeviceLinkError, DeviceLinkEvent, TimeSyncSample
 from icgt.errors import VersionMismatchError
 from icgt.protocol import PROTOCOL_VERSION, TABLE_HASH, Received, StreamDecoder, encode_frame
 from icgt.protocol.messages import (
@@ -273,7 +273,7 @@ class Host:
 
     def __init__(self) -> None:
         self.messages: list[tuple[Received, int]] = []
-        self.events: list[LinkEvent] = []
+        self.events: list[DeviceLinkEvent] = []
         self.syncs: list[TimeSyncSample] = []
         self._cv = threading.Condition()
 
@@ -282,7 +282,7 @@ class Host:
             self.messages.append((r, host_rx_ns))
             self._cv.notify_all()
 
-    def on_event(self, e: LinkEvent) -> None:
+    def on_event(self, e: DeviceLinkEvent) -> None:
         with self._cv:
             self.events.append(e)
             self._cv.notify_all()
@@ -304,7 +304,7 @@ class Host:
                     raise AssertionError(f"timed out waiting for {why or what}")
                 self._cv.wait(left)
 
-    def events_of(self, kind: str) -> list[LinkEvent]:
+    def events_of(self, kind: str) -> list[DeviceLinkEvent]:
         with self._cv:
             return [e for e in self.events if e.kind == kind]
 

@@ -25,7 +25,7 @@ from icgt.clocks.device_clock import ClockNotSyncedError
 from icgt.geodesy import LocalFrame
 from icgt.geotag.geotagger import GeotagConfig, Geotagger
 from icgt.geotag.record import FrameFlag, FrameRecord
-from icgt.mavlink.link import Received
+from icgt.mavlink.link import MavlinkMessage
 from icgt.mavlink.telemetry import TelemetryStore
 from icgt.protocol.messages import Exposure, ExposureFlags, Imu, Range, RangeFlags
 
@@ -133,7 +133,7 @@ class Rig:
         )
 
     def mav(self, msg) -> None:
-        assert self.store.ingest(Received(wire(msg), 0)) is not None
+        assert self.store.ingest(MavlinkMessage(wire(msg), 0)) is not None
 
     def gps(self, boot_ms: float, fix_type: int = 3) -> None:
         self.mav(

@@ -16,11 +16,11 @@ from icgt.mavlink.link import (
     DEFAULT_STREAM_RATES,
     LinkConfig,
     LinkError,
-    LinkEvent,
     LinkEventKind,
     LinkState,
+    MavlinkEvent,
     MavlinkLink,
-    Received,
+    MavlinkMessage,
 )
 from icgt.sync import SyncConfig, Synchroniser, TimesyncReply
 
@@ -31,12 +31,12 @@ class Recorder:
     """Collects the link's events and feeds a synchroniser as the recorder does (requests, then messages)."""
 
     def __init__(self, timesync_timeout_s: float = 1.0):
-        self.events: list[LinkEvent] = []
+        self.events: list[MavlinkEvent] = []
         self.timesync: list[TimesyncReply] = []
         self.lock = threading.Lock()
         self.sync = Synchroniser(SyncConfig(timesync_timeout_s=timesync_timeout_s))
 
-    def on_event(self, e: LinkEvent) -> None:
+    def on_event(self, e: MavlinkEvent) -> None:
         with self.lock:
             self.events.append(e)
 
@@ -44,7 +44,7 @@ class Recorder:
         with self.lock:
             self.sync.on_timesync_request(tx_ns)
 
-    def on_message(self, rec: Received) -> None:
+    def on_message(self, rec: MavlinkMessage) -> None:
         with self.lock:
             reply = self.sync.on_mavlink(rec.msg, rec.rx_ns)
             if reply is not None:
@@ -59,7 +59,7 @@ class Recorder:
         with self.lock:
             return [e.kind for e in self.events]
 
-    def of(self, kind: LinkEventKind) -> list[LinkEvent]:
+    def of(self, kind: LinkEventKind) -> list[MavlinkEvent]:
         with self.lock:
             return [e for e in self.events if e.kind is kind]
 
@@ -211,7 +211,7 @@ def test_unanswered_timesync_is_forgotten():
 
 def test_garbage_and_callback_errors_never_stop_the_reader(recorder):
     link, port = make_link(recorder, request_rates=False, timesync=False)
-    got: list[Received] = []
+    got: list[MavlinkMessage] = []
 
     def bad_callback(r):
         raise RuntimeError("subscriber bug")
@@ -241,7 +241,7 @@ def test_a_device_with_our_ids_is_not_taken_for_our_echo(recorder, caplog):
     """A real camera at component 100 of the vehicle: its frames are passed on and said loudly; our own
     frames looped back are echoes."""
     link, port = make_link(recorder, request_rates=False, timesync=False)
-    got: list[Received] = []
+    got: list[MavlinkMessage] = []
     link.subscribe(got.append, ["HEARTBEAT", "CAMERA_INFORMATION"])
     link.start()
     other_camera = AutopilotPeer(port, system=1, component=100)
@@ -257,7 +257,7 @@ def test_a_device_with_our_ids_is_not_taken_for_our_echo(recorder, caplog):
 
 def test_other_systems_on_udp_are_passed_on_undecoded(recorder):
     link, port = make_link(recorder, request_rates=False, timesync=False, decode_systems=frozenset({1}))
-    got: list[Received] = []
+    got: list[MavlinkMessage] = []
     link.subscribe(got.append)
     link.start()
     ap = AutopilotPeer(port)
@@ -282,9 +282,9 @@ def test_datagrams_carry_their_arrival_time_even_when_the_reader_is_late(recorde
     """The kernel's receive timestamp, not the moment a busy reader got to the datagram: a one-way clock from
     arrival times would otherwise see the autopilot's clock move by the reader's backlog."""
     link, port = make_link(recorder, request_rates=False, timesync=False)
-    got: list[Received] = []
+    got: list[MavlinkMessage] = []
 
-    def slow(rec: Received) -> None:
+    def slow(rec: MavlinkMessage) -> None:
         got.append(rec)
         if len(got) == 1:
             time.sleep(0.3)  # the reader is stuck here while the next datagram arrives
@@ -333,7 +333,7 @@ def test_tcp_peer_going_away_and_coming_back(recorder):
         LinkConfig(f"tcp:127.0.0.1:{port}", request_rates=False, timesync=False, reopen_delay_s=0.05),
         on_event=recorder.on_event,
     )
-    got: list[Received] = []
+    got: list[MavlinkMessage] = []
     link.subscribe(got.append, ["HEARTBEAT"])
     link.start()
     try:
@@ -358,7 +358,7 @@ def test_tcp_peer_going_away_and_coming_back(recorder):
 def test_tcpin_accepts_a_new_client_after_one_leaves(recorder):
     port = free_udp_port()  # a free TCP port just as well on 127.0.0.1
     link = MavlinkLink(LinkConfig(f"tcpin:127.0.0.1:{port}", request_rates=False, timesync=False))
-    got: list[Received] = []
+    got: list[MavlinkMessage] = []
     link.subscribe(got.append, ["HEARTBEAT"])
     link.start()
     mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from mavlink_peers import AutopilotPeer, free_udp_port, pack_v1, wait_until
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from icgt.mavlink.link import LinkConfig, MavlinkLink, Received
+from icgt.mavlink.link import LinkConfig, MavlinkLink, MavlinkMessage
 from icgt.mavlink.telemetry import (
     SystemTimeSample,
     TelemetryBuffer,
@@ -193,7 +193,7 @@ def test_system_time_zero_means_no_utc():
 def rec(msg, rx_ns=0, sysid=1, compid=1):
     m = mavlink2.MAVLink(None, srcSystem=sysid, srcComponent=compid)
     parsed = mavlink2.MAVLink(None).parse_buffer(msg.pack(m))
-    return Received(parsed[0], rx_ns)
+    return MavlinkMessage(parsed[0], rx_ns)
 
 
 def test_store_applies_the_fix_rule_to_fused_position():

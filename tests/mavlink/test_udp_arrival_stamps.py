@@ -17,7 +17,7 @@ import time
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from icgt.mavlink.link import LinkConfig, MavlinkLink, Received
+from icgt.mavlink.link import LinkConfig, MavlinkLink, MavlinkMessage
 
 
 def _free_udp_port() -> int:
@@ -32,7 +32,7 @@ def test_a_datagram_is_stamped_with_its_arrival_while_the_reader_is_busy() -> No
     got: dict[str, int] = {}
     busy = threading.Event()
 
-    def on_message(rec: Received) -> None:
+    def on_message(rec: MavlinkMessage) -> None:
         if rec.type == "HEARTBEAT" and not busy.is_set():
             busy.set()
             time.sleep(0.3)  # the reader is descheduled for 300 ms

@@ -6,7 +6,7 @@ from icgt.device.link import (
     DeviceBusyError,
     DeviceLink,
     DeviceLinkError,
-    LinkEvent,
+    DeviceLinkEvent,
     TimeSyncSample,
 )
 
@@ -16,6 +16,6 @@ __all__ = [
     "DeviceBusyError",
     "DeviceLink",
     "DeviceLinkError",
-    "LinkEvent",
+    "DeviceLinkEvent",
     "TimeSyncSample",
 ]

@@ -70,7 +70,7 @@ class TimeSyncSample:
 
 
 @dataclass(frozen=True, slots=True)
-class LinkEvent:
+class DeviceLinkEvent:
     """Something about the link itself, for the log: kind is one of
     'connected', 'disconnected', 'sequence_gap', 'frames_rejected', 'table_hash_mismatch'."""
 
@@ -82,7 +82,7 @@ class LinkEvent:
 
 
 MessageCallback = Callable[[Received, int], None]
-EventCallback = Callable[[LinkEvent], None]
+EventCallback = Callable[[DeviceLinkEvent], None]
 TimeSyncCallback = Callable[[TimeSyncSample], None]
 
 
@@ -337,11 +337,11 @@ class DeviceLink:
             self._dispatch(received, host_rx_ns)
         if stats.seq_missed != missed_before:
             n = stats.seq_missed - missed_before
-            self._on_event(LinkEvent("sequence_gap", host_rx_ns, f"{n} device messages lost", count=n))
+            self._on_event(DeviceLinkEvent("sequence_gap", host_rx_ns, f"{n} device messages lost", count=n))
         if stats.rejected != self._rejected_reported:
             n = stats.rejected - self._rejected_reported
             self._rejected_reported = stats.rejected
-            self._on_event(LinkEvent("frames_rejected", host_rx_ns, f"{n} corrupt frames skipped", count=n))
+            self._on_event(DeviceLinkEvent("frames_rejected", host_rx_ns, f"{n} corrupt frames skipped", count=n))
 
     def _dispatch(self, received: Received, host_rx_ns: int) -> None:
         msg = received.message
@@ -362,7 +362,7 @@ class DeviceLink:
             self._hello_event.set()
             if msg.table_hash != TABLE_HASH and msg.protocol_version == PROTOCOL_VERSION:
                 self._on_event(
-                    LinkEvent(
+                    DeviceLinkEvent(
                         "table_hash_mismatch",
                         host_rx_ns,
                         f"device message table 0x{msg.table_hash:08X}, host 0x{TABLE_HASH:08X}: different builds",
@@ -382,7 +382,7 @@ class DeviceLink:
                 port.close()
         # A half-received frame must not be glued to the first bytes after the outage.
         self._decoder.feed(b"\x00")
-        self._on_event(LinkEvent("disconnected", now, f"device link lost: {why}"))
+        self._on_event(DeviceLinkEvent("disconnected", now, f"device link lost: {why}"))
         if not self._reconnect:
             self._stop.set()
 
@@ -398,7 +398,9 @@ class DeviceLink:
             self._port = port
         self._connected.set()
         outage = now - self._down_since_ns
-        self._on_event(LinkEvent("connected", now, f"device link back after {outage / 1e9:.2f} s", outage_ns=outage))
+        self._on_event(
+            DeviceLinkEvent("connected", now, f"device link back after {outage / 1e9:.2f} s", outage_ns=outage)
+        )
 
 
 def port_holders(path: str) -> list[tuple[int, str]]:

@@ -42,7 +42,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from icgt.errors import IcgtError
-from icgt.mavlink.link import MavlinkLink, Received, Subscription, mavlink2
+from icgt.mavlink.link import MavlinkLink, MavlinkMessage, Subscription, mavlink2
 
 __all__ = [
     "CameraComponent",
@@ -350,7 +350,7 @@ class CameraComponent:
         return self.link.send(msg)
 
     # ------------------------------------------------------------------ reader side (must not block)
-    def _on_message(self, rec: Received) -> None:
+    def _on_message(self, rec: MavlinkMessage) -> None:
         msg = rec.msg
         target_sys, target_comp = int(msg.target_system), int(msg.target_component)
         if target_sys not in (0, self._system) or target_comp not in (0, self._component):

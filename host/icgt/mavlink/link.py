@@ -5,12 +5,12 @@
 
 * the **reader** stamps every received chunk with ``time.monotonic_ns()`` the moment it arrives, parses it
   with a MAVLink 2 parser (which also accepts MAVLink 1 frames, so mixed v1/v2 input is fine; garbage
-  becomes a counted bad frame, never an exception) and dispatches each message as a `Received` to the
+  becomes a counted bad frame, never an exception) and dispatches each message as a `MavlinkMessage` to the
   subscribers. Subscribers are **callbacks run on the reader thread**: they must return quickly and never
   block (take a lock briefly at most, or hand the message to your own queue). `subscribe_queue()` gives a
   bounded `queue.Queue` instead for consumers that want to block on their own thread.
 * the **service** thread tracks the autopilot's liveness (seen / lost after ``link_timeout_s`` without any
-  message / back, each a `LinkEvent` carrying the outage length), sends TIMESYNC requests (fast after the
+  message / back, each a `MavlinkEvent` carrying the outage length), sends TIMESYNC requests (fast after the
   autopilot appears, then slow; each send time goes to ``on_timesync_sent``: pairing the replies is the
   synchroniser's job, `icgt.sync`, so that the live recorder and the offline recompute pair them by one
   rule) and requests the telemetry stream rates with MAV_CMD_SET_MESSAGE_INTERVAL (one command at a time,
@@ -45,12 +45,12 @@ from icgt.mavlink.link_types import (
     MAV_COMP_ID_CAMERA,
     LinkConfig,
     LinkError,
-    LinkEvent,
     LinkEventKind,
     LinkState,
     LinkStats,
+    MavlinkEvent,
+    MavlinkMessage,
     RateRequestResult,
-    Received,
     StreamRate,
     Subscription,
     _RateJob,
@@ -62,13 +62,13 @@ __all__ = [
     "MAV_COMP_ID_CAMERA",
     "LinkConfig",
     "LinkError",
-    "LinkEvent",
     "LinkEventKind",
     "LinkState",
     "LinkStats",
+    "MavlinkEvent",
     "MavlinkLink",
+    "MavlinkMessage",
     "RateRequestResult",
-    "Received",
     "StreamRate",
     "Subscription",
     "mavlink2",
@@ -95,7 +95,7 @@ class MavlinkLink:
         self,
         config: LinkConfig,
         *,
-        on_event: Callable[[LinkEvent], None] | None = None,
+        on_event: Callable[[MavlinkEvent], None] | None = None,
         on_timesync_sent: Callable[[int], None] | None = None,
         clock: Callable[[], int] = time.monotonic_ns,
     ) -> None:
@@ -207,7 +207,9 @@ class MavlinkLink:
         return bool(self._threads) and not self._stop.is_set()
 
     # ------------------------------------------------------------------ subscriptions
-    def subscribe(self, callback: Callable[[Received], object], types: Iterable[str] | None = None) -> Subscription:
+    def subscribe(
+        self, callback: Callable[[MavlinkMessage], object], types: Iterable[str] | None = None
+    ) -> Subscription:
         """Call ``callback(received)`` on the reader thread for every message (or those of ``types``).
 
         The callback must not block; exceptions it raises are counted and logged, never propagated."""
@@ -220,11 +222,11 @@ class MavlinkLink:
         with self._lock:
             self._subs = tuple(s for s in self._subs if s is not sub)
 
-    def subscribe_queue(self, types: Iterable[str] | None = None, maxsize: int = 1000) -> queue.Queue[Received]:
+    def subscribe_queue(self, types: Iterable[str] | None = None, maxsize: int = 1000) -> queue.Queue[MavlinkMessage]:
         """A bounded queue fed by the reader; when full the oldest entry is dropped (counted in stats)."""
-        q: queue.Queue[Received] = queue.Queue(maxsize=maxsize)
+        q: queue.Queue[MavlinkMessage] = queue.Queue(maxsize=maxsize)
 
-        def put(item: Received) -> None:
+        def put(item: MavlinkMessage) -> None:
             while True:
                 try:
                     q.put_nowait(item)
@@ -421,7 +423,7 @@ class MavlinkLink:
                 with self._lock:
                     self._undecoded += len(others)
                 for frame in others:
-                    self._handle(Received(frame, rx_ns))
+                    self._handle(MavlinkMessage(frame, rx_ns))
                 if not data:
                     return
         truncated = False
@@ -440,9 +442,9 @@ class MavlinkLink:
             self._bytes += len(data)
             self._bad_frames += int(truncated)
         for msg in msgs:
-            self._handle(Received(msg, rx_ns))
+            self._handle(MavlinkMessage(msg, rx_ns))
 
-    def _handle(self, rec: Received) -> None:
+    def _handle(self, rec: MavlinkMessage) -> None:
         msg = rec.msg
         mtype = rec.type
         if mtype == "BAD_DATA":
@@ -456,7 +458,7 @@ class MavlinkLink:
                     self._self_echoes += 1
                 return  # our own frame, looped back by a router or a broadcast
             self._foreign_same_id(rec)
-        events: list[LinkEvent] = []
+        events: list[MavlinkEvent] = []
         with self._lock:
             self._by_type[mtype] = self._by_type.get(mtype, 0) + 1
             if rec.mavlink_version == 1:
@@ -481,19 +483,21 @@ class MavlinkLink:
                 except Exception:
                     self._count_callback_error(f"subscriber {sub.callback!r} on {mtype}")
 
-    def _autopilot_message_locked(self, rec: Received, mtype: str) -> list[LinkEvent]:
-        events: list[LinkEvent] = []
+    def _autopilot_message_locked(self, rec: MavlinkMessage, mtype: str) -> list[MavlinkEvent]:
+        events: list[MavlinkEvent] = []
         now = rec.rx_ns
         sysid, compid = rec.src_system, rec.src_component
         if self._state is LinkState.WAITING:
             self._state = LinkState.UP
-            events.append(LinkEvent(LinkEventKind.AUTOPILOT_SEEN, now, sysid, compid, detail=f"first {mtype}"))
+            events.append(MavlinkEvent(LinkEventKind.AUTOPILOT_SEEN, now, sysid, compid, detail=f"first {mtype}"))
             self._autopilot_fresh_locked(now)
         elif self._state is LinkState.LOST:
             self._state = LinkState.UP
             outage = now - self._lost_since_ns
             events.append(
-                LinkEvent(LinkEventKind.AUTOPILOT_BACK, now, sysid, compid, outage, f"back after {outage / 1e9:.3f} s")
+                MavlinkEvent(
+                    LinkEventKind.AUTOPILOT_BACK, now, sysid, compid, outage, f"back after {outage / 1e9:.3f} s"
+                )
             )
             self._autopilot_fresh_locked(now)
         self._last_ap_rx_ns = now
@@ -503,7 +507,7 @@ class MavlinkLink:
             self._last_boot_ms = boot_ms
             if last is not None and boot_ms + REBOOT_BACKSTEP_MS < last:
                 events.append(
-                    LinkEvent(
+                    MavlinkEvent(
                         LinkEventKind.AUTOPILOT_REBOOTED,
                         now,
                         sysid,
@@ -540,7 +544,7 @@ class MavlinkLink:
         job.ack = result
         job.acked = True
 
-    def _foreign_same_id(self, rec: Received) -> None:
+    def _foreign_same_id(self, rec: MavlinkMessage) -> None:
         """A frame with our system and component id that we did not send: another device (a real camera at
         component 100?) uses our ids. Said loudly (once every 10 s), counted, and passed on like any message."""
         now = rec.rx_ns
@@ -567,7 +571,7 @@ class MavlinkLink:
         if n <= 10 or n % 1000 == 0:
             log.exception("%s raised (error #%d)", what, n)
 
-    def _emit(self, event: LinkEvent, level: int = logging.INFO) -> None:
+    def _emit(self, event: MavlinkEvent, level: int = logging.INFO) -> None:
         log.log(level, "MAVLink %s %d:%d %s", event.kind.value, event.system, event.component, event.detail)
         if self._on_event is not None:
             try:
@@ -588,7 +592,7 @@ class MavlinkLink:
         with self._lock:
             self._transport_errors += 1
         self._parser = self._new_parser()
-        event = LinkEvent(
+        event = MavlinkEvent(
             LinkEventKind.TRANSPORT_ERROR,
             self._clock(),
             self.config.system_id,
@@ -614,7 +618,9 @@ class MavlinkLink:
             self._conn = conn
         cfg = self.config
         self._emit(
-            LinkEvent(LinkEventKind.TRANSPORT_REOPENED, self._clock(), cfg.system_id, cfg.component_id, detail=cfg.url)
+            MavlinkEvent(
+                LinkEventKind.TRANSPORT_REOPENED, self._clock(), cfg.system_id, cfg.component_id, detail=cfg.url
+            )
         )
 
     # ------------------------------------------------------------------ service thread
@@ -626,7 +632,7 @@ class MavlinkLink:
                 log.exception("MAVLink service step failed")
 
     def _service_once(self, now: int) -> None:
-        events: list[tuple[LinkEvent, int]] = []
+        events: list[tuple[MavlinkEvent, int]] = []
         send_timesync = False
         rate_to_send: StreamRate | None = None
         confirmation = 0
@@ -638,7 +644,7 @@ class MavlinkLink:
                 self._outages += 1
                 self._rate_jobs.clear()
                 silent = now - self._last_ap_rx_ns
-                lost = LinkEvent(
+                lost = MavlinkEvent(
                     LinkEventKind.AUTOPILOT_LOST,
                     now,
                     self._ap_system,
@@ -708,7 +714,7 @@ class MavlinkLink:
         if self.config.request_rates:
             self._rate_jobs = [_RateJob(rate) for rate in self.config.stream_rates]
 
-    def _rate_event(self, result: RateRequestResult) -> tuple[LinkEvent, int]:
+    def _rate_event(self, result: RateRequestResult) -> tuple[MavlinkEvent, int]:
         """Called with self._lock held."""
         if result.result is None:
             detail = f"{result.name} at {result.rate_hz:g} Hz: no COMMAND_ACK after {result.attempts} attempts"
@@ -716,7 +722,7 @@ class MavlinkLink:
             entry = mavlink2.enums["MAV_RESULT"].get(result.result)
             outcome = getattr(entry, "name", str(result.result))
             detail = f"{result.name} at {result.rate_hz:g} Hz: {outcome} (attempt {result.attempts})"
-        event = LinkEvent(
+        event = MavlinkEvent(
             LinkEventKind.RATE_REQUEST, result.host_ns, self._ap_system, self._ap_component or 0, detail=detail
         )
         return event, logging.INFO if result.accepted else logging.WARNING

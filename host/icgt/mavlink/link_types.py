@@ -16,12 +16,12 @@ __all__ = [
     "MAV_COMP_ID_CAMERA",
     "LinkConfig",
     "LinkError",
-    "LinkEvent",
     "LinkEventKind",
     "LinkState",
     "LinkStats",
+    "MavlinkEvent",
+    "MavlinkMessage",
     "RateRequestResult",
-    "Received",
     "StreamRate",
     "Subscription",
 ]
@@ -53,7 +53,7 @@ class LinkEventKind(enum.Enum):
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
-class LinkEvent:
+class MavlinkEvent:
     """A change worth a line in the log. ``outage_ns`` is set on AUTOPILOT_BACK (time since the last
     message before the loss) and AUTOPILOT_LOST (time since the last message, i.e. about the timeout)."""
 
@@ -66,7 +66,7 @@ class LinkEvent:
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
-class Received:
+class MavlinkMessage:
     """A message as the reader got it. ``rx_ns`` is time.monotonic_ns() when its last byte arrived."""
 
     msg: Any
@@ -194,7 +194,7 @@ class Subscription:
 
     __slots__ = ("callback", "types")
 
-    def __init__(self, callback: Callable[[Received], object], types: frozenset[str] | None) -> None:
+    def __init__(self, callback: Callable[[MavlinkMessage], object], types: frozenset[str] | None) -> None:
         self.callback = callback
         self.types = types
 

@@ -26,7 +26,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
 
 if TYPE_CHECKING:
-    from icgt.mavlink.link import MavlinkLink, Received, Subscription
+    from icgt.mavlink.link import MavlinkLink, MavlinkMessage, Subscription
 
 __all__ = [
     "GPS_FIX_3D",
@@ -499,7 +499,7 @@ class TelemetryStore:
         speed = max(math.hypot(s.vx_mps, s.vy_mps, s.vz_mps), math.hypot(last.vx_mps, last.vy_mps, last.vz_mps))
         return moved > max(LOCAL_RESET_MIN_JUMP_M, (speed + LOCAL_RESET_SPEED_MARGIN_MPS) * dt)
 
-    def ingest(self, rec: Received) -> Sample | None:
+    def ingest(self, rec: MavlinkMessage) -> Sample | None:
         """Convert and store one message; returns the sample (None if not telemetry or not stored)."""
         if rec.src_system != self.autopilot_system or (
             self.autopilot_component is not None and rec.src_component != self.autopilot_component

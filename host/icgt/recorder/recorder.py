@@ -34,7 +34,7 @@ from icgt.device import (
     DeviceAbsentError,
     DeviceLink,
     DeviceLinkError,
-    LinkEvent,
+    DeviceLinkEvent,
     TimeSyncSample,
 )
 from icgt.errors import IcgtError
@@ -42,8 +42,7 @@ from icgt.geodesy import q_conjugate, q_multiply
 from icgt.geotag import FrameRecord
 from icgt.geotag.geotagger import _Q_CAM_TO_BODY_BASE
 from icgt.mavlink.camera import CameraComponent, CameraConfig, CameraInfo, CapturedImage, CommandResult
-from icgt.mavlink.link import LinkConfig, MavlinkLink, Received, StreamRate
-from icgt.mavlink.link import LinkEvent as MavlinkLinkEvent
+from icgt.mavlink.link import LinkConfig, MavlinkEvent, MavlinkLink, MavlinkMessage, StreamRate
 from icgt.protocol import MESSAGE_TYPES, PROTOCOL_VERSION, TABLE_HASH
 from icgt.protocol import Received as DeviceReceived
 from icgt.protocol.messages import (
@@ -405,7 +404,7 @@ class Recorder:
         elif isinstance(msg, Log):
             log.log(_DEVICE_LOG_LEVELS.get(msg.level, logging.INFO), "device: %s", msg.text)
 
-    def _on_device_link_event(self, event: LinkEvent) -> None:
+    def _on_device_link_event(self, event: DeviceLinkEvent) -> None:
         level = logging.INFO if event.kind == "connected" else logging.WARNING
         log.log(level, "device link: %s", event.detail)
         self._write_event("device", event.kind, event.detail, event.host_ns, event.count, event.outage_ns)
@@ -537,7 +536,7 @@ class Recorder:
         )
         self.camera.start()
 
-    def _on_mavlink_message(self, rec: Received) -> None:
+    def _on_mavlink_message(self, rec: MavlinkMessage) -> None:
         name = rec.type
         if name == "BAD_DATA":
             return
@@ -568,7 +567,7 @@ class Recorder:
         self._write(layout.CLOCK_AUTOPILOT_REQUESTS, {"host_tx_ns": tx_ns}, tx_ns)
         self.sync.on_timesync_request(tx_ns)
 
-    def _on_mavlink_event(self, event: MavlinkLinkEvent) -> None:
+    def _on_mavlink_event(self, event: MavlinkEvent) -> None:
         # MavlinkLink logs the event itself (icgt.mavlink.link, also on /icgt/log); here it only goes on the topic.
         self._write_event("mavlink", event.kind.value, event.detail, event.host_ns, 0, event.outage_ns or 0)
 

@@ -39,7 +39,7 @@ from icgt.geotag.clock_views import AutopilotClockView, UtcView, add_pps_edge
 from icgt.geotag.geotagger import GeotagConfig, Geotagger
 from icgt.geotag.record import FrameRecord
 from icgt.mavlink.autopilot_rules import BOOT_CLOCK_TYPES, AutopilotPresence, Freshness
-from icgt.mavlink.link import Received
+from icgt.mavlink.link import MavlinkMessage
 from icgt.mavlink.telemetry import TelemetryStore
 from icgt.protocol.messages import Exposure, Hello, Imu, Message, Pps, Range, Status
 from icgt.sync.timesync import TimesyncPairing, TimesyncReply
@@ -207,7 +207,7 @@ class Synchroniser:
         if mtype == "HEARTBEAT":
             return None
         self.telemetry.autopilot_component = self.autopilot.component or self._default_component
-        self.telemetry.ingest(Received(msg, rx_ns))
+        self.telemetry.ingest(MavlinkMessage(msg, rx_ns))
         if mtype == "SYSTEM_TIME" and fresh is not None:  # the autopilot's own, not a companion's
             self.utc.add_system_time(int(msg.time_unix_usec), int(msg.time_boot_ms))
         return None

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Any
 
 from icgt.errors import IcgtError
 from icgt.export import ExportError
+from icgt.recording import layout
 
 if TYPE_CHECKING:  # the heavy modules load when a command runs, not when the parser is built
     from icgt.export.card import CardScan
@@ -150,7 +151,7 @@ def surface_normal_from_metadata(metadata: Mapping[str, Mapping[str, str]]) -> t
 def geoid_separation_from_log(recording: Any) -> float | None:
     """GPS_RAW_INT alt_ellipsoid - alt [m] of the first message that has both (MAVLink 2 extension)."""
     try:
-        messages = recording.messages("/mavlink/gps_raw_int")
+        messages = recording.messages(layout.mavlink_topic("GPS_RAW_INT"))
         try:
             for _, msg in messages:
                 alt, alt_ell = msg.get("alt"), msg.get("alt_ellipsoid")
@@ -292,7 +293,7 @@ def run_export(
     problems = ProblemLog()
     if getattr(recording, "note", None):
         log.warning("%s", recording.note)
-    total = recording.topics().get("/frames")
+    total = recording.topics().get(layout.FRAMES)
     frames = list(tqdm(recording.frames(), desc="frames", unit="frame", total=total, disable=not progress))
     ros2_only = set(formats) <= {"ros2"}  # the bag needs neither frames nor a camera model
     camera_free = set(formats) <= {"ros2", "ppk"}  # nor do the PPK event files need a camera model

@@ -60,6 +60,7 @@ from icgt.export import ExportError
 from icgt.export.ros2_msgs import MSG_TYPE, frame_record_fields, shipped_msg_text
 from icgt.geodesy import Q_NED_TO_ENU, LocalFrame, q_conjugate, q_multiply, q_rotate
 from icgt.geotag.record import FrameRecord
+from icgt.recording import layout
 
 log = logging.getLogger(__name__)
 
@@ -84,14 +85,14 @@ _DEVICE_LEVEL = {1: 10, 2: 20, 3: 30, 4: 40, 5: 50}
 _NAMED_LEVEL = {"DEBUG": 10, "INFO": 20, "WARNING": 30, "WARN": 30, "ERROR": 40, "FATAL": 50, "UNKNOWN": 20}
 
 _SOURCE_TOPICS = (
-    "/frames",
-    "/device/imu",
-    "/device/range",
-    "/device/log",
-    "/icgt/log",
-    "/mavlink/global_position_int",
-    "/mavlink/gps_raw_int",
-    "/mavlink/attitude_quaternion",
+    layout.FRAMES,
+    layout.device_topic("IMU"),
+    layout.device_topic("RANGE"),
+    layout.device_topic("LOG"),
+    layout.LOG,
+    layout.mavlink_topic("GLOBAL_POSITION_INT"),
+    layout.mavlink_topic("GPS_RAW_INT"),
+    layout.mavlink_topic("ATTITUDE_QUATERNION"),
 )
 
 
@@ -209,14 +210,14 @@ class _Converter:
     # --- per source topic ---------------------------------------------------------------------
     def convert(self, topic: str, ns: int, data: dict[str, Any]) -> None:
         handler = {
-            "/frames": self._frame,
-            "/device/imu": self._imu,
-            "/device/range": self._range,
-            "/device/log": self._device_log,
-            "/icgt/log": self._host_log,
-            "/mavlink/global_position_int": self._global_position,
-            "/mavlink/gps_raw_int": self._gps_raw,
-            "/mavlink/attitude_quaternion": self._attitude,
+            layout.FRAMES: self._frame,
+            layout.device_topic("IMU"): self._imu,
+            layout.device_topic("RANGE"): self._range,
+            layout.device_topic("LOG"): self._device_log,
+            layout.LOG: self._host_log,
+            layout.mavlink_topic("GLOBAL_POSITION_INT"): self._global_position,
+            layout.mavlink_topic("GPS_RAW_INT"): self._gps_raw,
+            layout.mavlink_topic("ATTITUDE_QUATERNION"): self._attitude,
         }[topic]
         handler(ns, data)
 

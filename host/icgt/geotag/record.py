@@ -1,6 +1,6 @@
 """The geotagged frame record: everything the inspection pipeline needs about one exposure.
 
-One record per exposure (../shared/BRIEF.md, "What each frame record must carry"). Times are
+One record per exposure. Times are
 given on the three clocks with their uncertainty; the pose is interpolated to mid-exposure;
 quality flags say what to distrust. Written to MCAP on /frames (JSON, schema derived from this
 class) and read back by the ingest tools.

@@ -31,6 +31,7 @@ import numpy as np
 
 from icgt.errors import IcgtError
 from icgt.geotag.record import FrameFlag, FrameRecord
+from icgt.recording import layout
 
 __all__ = [
     "FLAG_BITS",
@@ -44,7 +45,7 @@ __all__ = [
     "read",
 ]
 
-FRAMES_TOPIC = "/frames"
+FRAMES_TOPIC = layout.FRAMES
 MAGIC = b"\x89MCAP0\r\n"
 _FOOTER_RECORD_SIZE = 1 + 8 + 8 + 8 + 4  # opcode, length, summary start, summary offset start, summary CRC
 _OPCODE_FOOTER = 0x02

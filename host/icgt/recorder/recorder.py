@@ -43,7 +43,7 @@ from icgt.geotag import FrameRecord
 from icgt.geotag.geotagger import _Q_CAM_TO_BODY_BASE
 from icgt.mavlink.camera import CameraComponent, CameraConfig, CameraInfo, CapturedImage, CommandResult
 from icgt.mavlink.link import LinkConfig, MavlinkEvent, MavlinkLink, MavlinkMessage, StreamRate
-from icgt.protocol import MESSAGE_TYPES, PROTOCOL_VERSION, TABLE_HASH
+from icgt.protocol import PROTOCOL_VERSION, TABLE_HASH
 from icgt.protocol import Received as DeviceReceived
 from icgt.protocol.messages import (
     Board,
@@ -292,11 +292,8 @@ class Recorder:
     # ------------------------------------------------------------------ log
     def _register_topics(self) -> None:
         assert self.mcap is not None
-        for cls in MESSAGE_TYPES.values():
-            if cls.DIRECTION == "device_to_host":
-                self.mcap.register_json(
-                    topics.device_topic(cls.NAME), f"icgt.device.{cls.NAME}", topics.device_schema(cls)
-                )
+        for topic, cls in layout.DEVICE_TOPIC_TYPES.items():
+            self.mcap.register_json(topic, f"icgt.device.{cls.NAME}", topics.device_schema(cls))
         self.mcap.register_dataclass(topics.FRAMES, FrameRecord)
         for name in (layout.CLOCK_DEVICE, layout.CLOCK_AUTOPILOT):
             self.mcap.register_json(name, "icgt.clock.estimate", layout.ESTIMATE_SCHEMA)
@@ -627,9 +624,9 @@ class Recorder:
             self._flush_other_systems()
 
     def _handle(self, item: tuple[int, Any, int]) -> None:
-        kind, payload, _ = item
+        kind, payload, rx_ns = item
         if kind == _DEVICE:
-            self._on_device_message(payload, item[2])
+            self._on_device_message(payload, rx_ns)
         elif kind == _MAVLINK:
             self._on_mavlink_message(payload)
         elif kind == _EXCHANGE:

@@ -21,6 +21,10 @@ import numpy as np
 
 from icgt.errors import IcgtError
 from icgt.geotag.record import FrameRecord
+from icgt.recording import layout
+
+_TRACK = layout.mavlink_topic("GLOBAL_POSITION_INT")
+_STATUS = layout.device_topic("STATUS")
 
 log = logging.getLogger(__name__)
 
@@ -92,11 +96,7 @@ def gather(recording: Any, images: Path | None = None) -> FlightData:
     offset = recording.monotonic_to_utc_offset_ns
     frames: list[FrameRecord] = list(recording.frames())
     topics = recording.topics()
-    wanted = [
-        t
-        for t in ("/mavlink/global_position_int", "/clock/device", "/clock/utc", "/icgt/link_events", "/device/status")
-        if t in topics
-    ]
+    wanted = [t for t in (_TRACK, layout.CLOCK_DEVICE, layout.CLOCK_UTC, layout.LINK_EVENTS, _STATUS) if t in topics]
     t0: int | None = None
     track: list[tuple[int, float, float, float]] = []
     dev_clock: list[tuple[int, float | None]] = []
@@ -109,19 +109,19 @@ def gather(recording: Any, images: Path | None = None) -> FlightData:
     for msg in recording.records(wanted):
         host = _host_ns(msg.log_time_ns, offset)
         d = msg.data
-        if msg.topic == "/mavlink/global_position_int":
+        if msg.topic == _TRACK:
             if isinstance(d.get("lat"), int) and isinstance(d.get("lon"), int) and isinstance(d.get("alt"), int):
                 track.append((host, d["lat"] / 1e7, d["lon"] / 1e7, d["alt"] / 1000.0))
-        elif msg.topic == "/clock/device":
+        elif msg.topic == layout.CLOCK_DEVICE:
             dev_clock.append((host, d["uncertainty_ns"] / 1000.0 if d.get("valid") else None))
-        elif msg.topic == "/clock/utc":
+        elif msg.topic == layout.CLOCK_UTC:
             bound = d.get("uncertainty_us")
             utc_clock.append(
                 (host, float(bound) if d.get("valid") and bound is not None else None, d.get("source", ""))
             )
-        elif msg.topic == "/icgt/link_events":
+        elif msg.topic == layout.LINK_EVENTS:
             events.append({**d, "_host": d.get("host_ns", host)})
-        elif msg.topic == "/device/status":
+        elif msg.topic == _STATUS:
             status = {k: int(v) for k, v in d.items() if isinstance(v, int)}
     if t0 is None:
         raise ReportError(f"{recording.path}: the recording is empty")

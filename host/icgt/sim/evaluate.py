@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from icgt.geodesy import LocalFrame
-from icgt.recording import RecordingError
+from icgt.recording import RecordingError, layout
 from icgt.sim.scenario import Scenario
 from icgt.sim.trajectory import Trajectory
 
@@ -49,7 +49,7 @@ def read_frames(mcap_path: Path) -> list[dict[str, Any]]:
 
     try:
         with mcap_path.open("rb") as f:
-            return [json.loads(m.data) for _, _, m in make_reader(f).iter_messages(topics=["/frames"])]
+            return [json.loads(m.data) for _, _, m in make_reader(f).iter_messages(topics=[layout.FRAMES])]
     except (McapError, OSError, ValueError) as exc:
         raise RecordingError(f"cannot read frames from {mcap_path}: {exc} (try `icgt recover`)") from exc
 
@@ -194,7 +194,7 @@ def latest_pose_peer(scenario: Scenario, mcap_path: Path, truth: list[dict[str, 
 
     rx: list[int] = []
     with mcap_path.open("rb") as f:
-        for _, _, m in make_reader(f).iter_messages(topics=["/mavlink/global_position_int"]):
+        for _, _, m in make_reader(f).iter_messages(topics=[layout.mavlink_topic("GLOBAL_POSITION_INT")]):
             rx.append(int(json.loads(m.data)["host_rx_ns"]))
     rx.sort()
     traj = Trajectory(scenario)

@@ -235,19 +235,22 @@ class Synchroniser:
         return ready
 
     def _check_utc_source(self, now_ns: int) -> None:
-        """Log each change of UTC source with how far the new one is from the host clock (a jump of frames' UTC)."""
-        est = self.utc.host_to_utc(now_ns)
-        source = est.source.value if est.valid else "none"
+        """Log each change of UTC source with how far the new one is from the host clock (a jump of frames' UTC).
+
+        Runs at every poll: the change is seen from the mapper's source alone; the estimate (whose bound
+        costs a search over the TIMESYNC hull) is computed only when the source changed."""
+        source = self.utc.source.value
         if source == self._utc_source:
             return
         previous, self._utc_source = self._utc_source, source
         if not previous:
             return
+        est = self.utc.host_to_utc(now_ns)
         host = self.utc.host_realtime_utc_us(now_ns)
-        jump = f"{(est.utc_us - host) / 1e6:+.6f} s from the host clock" if est.valid and host is not None else ""
-        self._event(
-            "utc_source_changed", now_ns, f"UTC now from {source} (was {previous}){': ' + jump if jump else ''}"
-        )
+        detail = f"UTC now from {source} (was {previous})"
+        if est.valid and host is not None:
+            detail += f": {(est.utc_us - host) / 1e6:+.6f} s from the host clock"
+        self._event("utc_source_changed", now_ns, detail)
 
     @property
     def pending_frames(self) -> int:

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Any, Literal, NoReturn, TypeAlias
 
 from icgt.errors import IcgtError
 from icgt.sim.profiles import IDEAL_RATES_HZ, PROFILE_NAMES, PROFILES
+from icgt.sim.resources import scenario_dir
 
 if TYPE_CHECKING:
     from icgt.sim.surface import Surface
@@ -41,8 +42,8 @@ if TYPE_CHECKING:
 Vec3: TypeAlias = tuple[float, float, float]
 Window: TypeAlias = tuple[float, float]
 
-SCENARIO_DIR = Path(__file__).resolve().parents[3] / "hil_sim" / "scenarios"
-"""Where the repository keeps its scenario files."""
+SCENARIO_DIR = scenario_dir()
+"""Where the scenario files are: inside the installed wheel, else the repository's hil_sim/scenarios."""
 
 TRAJECTORY_KINDS = ("pier_scan", "deck_pass", "hover")
 LIDAR_MAX_RANGE_M = {"v3": 40.0, "v3hp": 40.0}
@@ -835,6 +836,9 @@ def load_scenario(path: str | Path) -> Scenario:
     p = Path(path)
     if not p.suffix and not p.exists() and p.parent == Path("."):
         p = SCENARIO_DIR / f"{p.name}.toml"
+        if not p.is_file():
+            known = ", ".join(sorted(q.stem for q in SCENARIO_DIR.glob("*.toml"))) or "none"
+            raise ScenarioError(f"unknown scenario {str(path)!r}: the scenarios in {SCENARIO_DIR} are {known}")
     try:
         with p.open("rb") as f:
             data = tomllib.load(f)

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from icgt.sim.autopilot import SimAutopilot
 from icgt.sim.camera_card import write_card
+from icgt.sim.resources import DEVICE_PROGRAM, device_candidates
 from icgt.sim.scenario import Scenario, SimError
 from icgt.sim.truth import (
     ClockMaps,
@@ -32,21 +33,17 @@ from icgt.sim.truth import (
     write_sensor_truth,
 )
 
-REPO_ROOT = Path(__file__).resolve().parents[3]
-DEVICE_BINARY_ENV = "ICGT_SIM_DEVICE"
 
 
 def find_device_binary() -> Path:
-    """The simulated device program: $ICGT_SIM_DEVICE, else the project's CMake build."""
-    env = os.environ.get(DEVICE_BINARY_ENV)
-    candidates = [Path(env)] if env else []
-    candidates += [REPO_ROOT / "build" / "host" / "hil_sim" / "icgt-sim-device"]
+    """The simulated device program: $ICGT_SIM_DEVICE, the wheel's copy, else the checkout's CMake build."""
+    candidates = device_candidates()
     for c in candidates:
         if c.is_file() and os.access(c, os.X_OK):
             return c
     raise SimError(
-        f"icgt-sim-device not found (looked at {', '.join(str(c) for c in candidates)}): run `make build`, "
-        f"or set {DEVICE_BINARY_ENV}"
+        f"{DEVICE_PROGRAM} not found (looked at {', '.join(str(c) for c in candidates)}): in a checkout run "
+        f"`make build`; else install icgt from its wheel (which builds it), or set {DEVICE_BINARY_ENV} to the program"
     )
 
 

@@ -20,7 +20,7 @@ from PIL import Image
 
 from icgt.export import ExportError
 from icgt.export.cli import export_items, run_export
-from icgt.export.common import ProblemLog, check_out_dir, prepare_items
+from icgt.export.common import RECORD_FIELDS, ProblemLog, check_out_dir, prepare_items
 from icgt.export.exif_tags import XMP_NS
 from icgt.geodesy import LocalFrame, q_from_euler_zyx, q_multiply
 from icgt.geometry import CameraModel, Projector
@@ -222,5 +222,18 @@ def test_run_export_from_a_recording_without_images(tmp_path: Path) -> None:
     cams = json.loads((tmp_path / "out" / "cameras.geojson").read_text())
     assert len(cams["features"][0]["geometry"]["coordinates"]) == 2  # no GPS_RAW_INT: geoid unknown, 2D
     assert check_geojson(cams)[0] == []
-    with pytest.raises(ExportError, match="unknown export format"):
-        run_export(path, tmp_path / "out2", formats=["shp"])
+    with pytest.raises(ExportError, match="unknown export format 'dxf'"):
+        run_export(path, tmp_path / "out2", formats=["dxf"])
+
+
+@pytest.mark.parametrize("asked", ["shp", "Shapefile", "esri"])
+def test_shapefile_is_refused_with_the_reason(asked: str, tmp_path: Path) -> None:
+    """No silently truncated Shapefile: the refusal counts the names it would cut and points to GeoPackage."""
+    long_names = [n for n in RECORD_FIELDS if len(n) > 10]
+    assert len(long_names) > 10  # most FrameRecord names are longer than dBASE allows
+    with pytest.raises(ExportError) as exc:
+        run_export(tmp_path / "log.mcap", tmp_path / "out", formats=["csv", asked])
+    text = str(exc.value)
+    assert f"{len(long_names)} of the {len(RECORD_FIELDS)} frame fields" in text
+    assert "mid_utc" in text and "gpkg" in text and "Shapefile is not written" in text
+    assert not (tmp_path / "out").exists()  # refused before anything is written

@@ -4,6 +4,10 @@
   name, times to the millisecond with their zone and to the microsecond, heights MSL on EPSG:9707;
   the footprints on the face are valid 2D polygons whose areas are the geometry's footprint areas;
 - KML (ElementTree): every placemark's altitudeMode is absolute and its height the MSL altitude;
+- the same files read back through GDAL (pyogrio): field names and types, UTC times, CRS, 3D
+  coordinates, valid face polygons; KML's altitudeMode as GDAL's LIBKML driver reports it;
+- FlatGeobuf (--formats fgb): the three layers read back through GDAL, the list field (flags) as
+  one comma-separated string;
 - GeoJSON is still written next to them.
 """
 
@@ -16,9 +20,12 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import shapely
 from export_exit import expected_export_exit
+from pyogrio import list_layers, read_info
+from pyogrio.raw import read as ogr_read
 
 from icgt.cli import main
 from icgt.export.common import RECORD_FIELDS, utc_iso
@@ -113,3 +120,68 @@ def test_kml_heights_are_absolute_msl(out: Path, frames: dict[int, Any]) -> None
 def test_geojson_still_written(out: Path, frames: dict[int, Any]) -> None:
     cams = json.loads((out / "cameras.geojson").read_text())
     assert len(cams["features"]) == len(frames)
+
+
+def _gdal_layer(path: Path, layer: str | None = None) -> tuple[dict[str, Any], list[Any], dict[str, Any]]:
+    """(metadata, shapely geometries, columns by field name) of one layer, read by GDAL."""
+    meta, _, geometry, fields = ogr_read(path, layer=layer, datetime_as_string=True)
+    return meta, list(shapely.from_wkb(geometry)), dict(zip(meta["fields"], fields, strict=True))
+
+
+def _check_gdal_cameras(path: Path, frames: dict[int, Any], layer: str | None = None) -> None:
+    meta, geoms, cols = _gdal_layer(path, layer)
+    assert meta["crs"] == "EPSG:9707" and meta["geometry_type"] == "Point Z"
+    assert set(RECORD_FIELDS) <= set(cols), set(RECORD_FIELDS) - set(cols)  # full names, none cut
+    types = dict(zip(meta["fields"], meta["ogr_types"], strict=True))
+    assert types["mid_utc"] == "OFTDateTime" and types["mid_utc_us"] == "OFTInteger64"
+    assert types["alt_msl_m"] == "OFTReal" and types["flags"] == "OFTString"
+    assert len(geoms) == len(frames)
+    for i, seq in enumerate(cols["frame_seq"]):
+        rec = frames[int(seq)]
+        assert cols["mid_utc"][i] == utc_iso(rec.mid_utc_us)[:23] + "Z"
+        assert int(cols["mid_utc_us"][i]) == rec.mid_utc_us
+        assert cols["flags"][i] == ",".join(rec.flags)
+        assert (geoms[i].x, geoms[i].y, geoms[i].z) == (rec.lon_deg, rec.lat_deg, rec.alt_msl_m)
+
+
+def _check_gdal_face(path: Path, n: int, layer: str | None = None) -> None:
+    meta, geoms, cols = _gdal_layer(path, layer)
+    assert meta["geometry_type"] == "Polygon" and len(geoms) == n
+    for poly, area in zip(geoms, cols["area_m2"], strict=True):
+        assert not poly.has_z and poly.is_valid, shapely.is_valid_reason(poly)
+        assert poly.area == pytest.approx(float(area), rel=1e-6)
+
+
+def test_gpkg_read_back_by_gdal(out: Path, frames: dict[int, Any]) -> None:
+    path = out / "icgt.gpkg"
+    assert {str(name) for name, _ in list_layers(path)} == {"cameras", "footprints", "footprints_face"}
+    _check_gdal_cameras(path, frames, "cameras")
+    meta, geoms, _ = _gdal_layer(path, "footprints")
+    assert meta["geometry_type"] == "Polygon Z" and len(geoms) == len(frames)
+    _check_gdal_face(path, len(frames), "footprints_face")
+
+
+def test_kml_read_back_by_gdal(out: Path, frames: dict[int, Any]) -> None:
+    path = out / "icgt.kml"
+    info = read_info(path, layer="cameras")
+    assert info["features"] == len(frames)
+    _, geoms, cols = _gdal_layer(path, "cameras")
+    assert set(cols["altitudeMode"]) == {"absolute"}  # LIBKML reports each placemark's altitudeMode
+    alts = {int(seq): g.z for seq, g in zip(cols["frame_seq"], geoms, strict=True)}
+    assert alts == pytest.approx({seq: rec.alt_msl_m for seq, rec in frames.items()}, abs=1e-6)
+    _, polys, cols = _gdal_layer(path, "footprints")
+    assert len(polys) == len(frames) and set(cols["altitudeMode"]) == {"absolute"}
+    assert all(p.has_z for p in polys)
+
+
+def test_flatgeobuf_read_back_by_gdal(export_flight: Any, frames: dict[int, Any], tmp_path: Path) -> None:
+    args = ["export", str(export_flight.mcap), "--images", str(export_flight.card), "--out", str(tmp_path),
+            "--formats", "fgb", "--no-progress"]  # fmt: skip
+    assert main(args) == expected_export_exit(tmp_path)
+    _check_gdal_cameras(tmp_path / "cameras.fgb", frames)
+    assert any("," in f for f in _gdal_layer(tmp_path / "cameras.fgb")[2]["flags"])  # lists with several items
+    meta, geoms, cols = _gdal_layer(tmp_path / "footprints.fgb")
+    assert meta["geometry_type"] == "Polygon Z" and len(geoms) == len(frames)
+    assert list(cols["flags"]) == [",".join(frames[int(s)].flags) for s in cols["frame_seq"]]
+    assert np.all(np.diff(cols["frame_seq"].astype(np.int64)) > 0)  # no spatial index: the frames' order
+    _check_gdal_face(tmp_path / "footprints_face.fgb", len(frames))

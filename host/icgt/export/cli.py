@@ -6,7 +6,8 @@
 
 Writes into --out: frames.csv, icgt.gpkg (GeoPackage: cameras, footprints, footprints on the face),
 cameras.geojson, footprints.geojson, icgt.kml (absolute MSL heights), geo.txt, exif_overrides.json,
-images/ (geotagged copies; the originals are only read), with ``ros2`` the ROS 2 bag ros2/ (not by
+images/ (geotagged copies; the originals are only read), with ``fgb`` the same layers as FlatGeobuf
+(cameras.fgb, footprints.fgb, footprints_face.fgb), with ``ros2`` the ROS 2 bag ros2/ (not by
 default: it holds every sensor sample), with ``ppk`` the exposure events in GPS time for PPK tools
 (events_gpst.csv, Timestamp.MRK: `icgt.trajectories.ppk_events`) and problems.csv (one row per input problem:
 no fix, zero GPS, no UTC, an image without EXIF time or without an exposure, an exposure without an
@@ -44,7 +45,7 @@ if TYPE_CHECKING:  # the heavy modules load when a command runs, not when the pa
 
 log = logging.getLogger(__name__)
 
-FORMATS = ("csv", "gpkg", "geojson", "kml", "odm", "opensfm", "jpeg", "ros2", "ppk")
+FORMATS = ("csv", "gpkg", "geojson", "kml", "odm", "opensfm", "jpeg", "ros2", "ppk", "fgb")
 DEFAULT_FORMATS = ("csv", "gpkg", "geojson", "kml", "odm", "opensfm", "jpeg")
 CSV_FILE = "frames.csv"
 PROBLEMS_FILE = "problems.csv"
@@ -102,6 +103,11 @@ def export_items(
 
         for layer, n in write_kml(out_dir / KML_FILE, items).items():
             written[f"kml {layer}"] = n
+    if "fgb" in wanted:
+        from icgt.export.gis import write_fgb
+
+        for layer, n in write_fgb(out_dir, items).items():
+            written[f"fgb {layer}"] = n
     if "odm" in wanted:
         written["geo.txt lines"] = write_geo_txt(out_dir / GEO_TXT, items, problems, progress=progress)
     if "opensfm" in wanted:
@@ -284,6 +290,10 @@ def run_export(
     from icgt.ingest import read
 
     unknown = [f for f in formats if f not in FORMATS]
+    from icgt.export.gis import SHAPEFILE_NAMES, shapefile_refusal
+
+    if shapefile := next((f for f in unknown if f.lower() in SHAPEFILE_NAMES), None):
+        raise ExportError(shapefile_refusal(shapefile))
     if unknown:
         raise ExportError(f"unknown export format {unknown[0]!r}: choose from {', '.join(FORMATS)}")
     if images is not None and not images.is_dir():

@@ -13,7 +13,18 @@
 
 ``icgt.kml`` (LIBKML driver) holds the cameras and the footprints with ``altitudeMode`` absolute:
 KML's absolute heights are above mean sea level, the records' altitudes are MSL, written as they
-are. Every written file is read back and its feature counts checked.
+are.
+
+FlatGeobuf (``--formats fgb``; one layer per file: ``cameras.fgb``, ``footprints.fgb``,
+``footprints_face.fgb``) carries the same layers and fields as the GeoPackage. FlatGeobuf has no
+list type, so list fields (``flags``) are written as one string, comma-separated, as in the
+GeoPackage (GDAL would otherwise write a Python-looking repr of the list).
+
+Shapefile is not written: dBASE field names stop at 10 characters (most FrameRecord names are
+longer, and truncated names collide) and its Date type has no time of day, so ``mid_utc`` would
+lose its time. Asking for it says so and points to the GeoPackage (`shapefile_refusal`).
+
+Every written file is read back and its feature counts checked.
 """
 
 from __future__ import annotations
@@ -33,6 +44,10 @@ logging.getLogger("pyogrio").setLevel(logging.WARNING)  # it logs every layer wr
 
 GPKG_FILE = "icgt.gpkg"
 KML_FILE = "icgt.kml"
+FGB_SUFFIX = ".fgb"
+SHAPEFILE_NAMES = ("shp", "shapefile", "esri")
+DBF_NAME_LIMIT = 10
+"""Characters of a Shapefile (dBASE) field name."""
 # WGS 84 + EGM96 height (EPSG:9707): latitude, longitude and a height above mean sea level, as the
 # records carry it (autopilots report MSL on the EGM96 geoid).
 GEO_CRS = "EPSG:9707"
@@ -282,3 +297,39 @@ def write_kml(path: Path, items: Sequence[ExportItem]) -> dict[str, int]:
     if any(written.values()):
         _check_counts(path, written)
     return written
+
+
+def write_fgb(out_dir: Path, items: Sequence[ExportItem]) -> dict[str, int]:
+    """Write cameras.fgb, footprints.fgb and footprints_face.fgb (replacing old ones); features per layer."""
+    cams, cam_items = _cameras(items)
+    fps, fp_items = _geo_footprints(items)
+    face, face_items, _ = _face_polygons(items)
+    layers = [
+        (CAMERAS, cams, [camera_row(i) for i in cam_items], "Point Z", GEO_CRS),
+        (FOOTPRINTS, fps, [footprint_row(i) for i in fp_items], "Polygon Z", GEO_CRS),
+        (FACE, face, [footprint_row(i) for i in face_items], "Polygon", FACE_CRS),
+    ]
+    written: dict[str, int] = {}
+    for layer, geoms, rows, geometry_type, crs in layers:
+        path = out_dir / f"{layer}{FGB_SUFFIX}"
+        path.unlink(missing_ok=True)
+        written[layer] = len(geoms)
+        if geoms:
+            # no spatial index: a few hundred features; the file then keeps the frames' order
+            _write(path, layer, geoms, rows, driver="FlatGeobuf", geometry_type=geometry_type, crs=crs,
+                   layer_options={"SPATIAL_INDEX": "NO"})  # fmt: skip
+            _check_counts(path, {layer: len(geoms)})
+    return written
+
+
+def shapefile_refusal(asked: str) -> str:
+    """Why no Shapefile is written, with the numbers, and what to use instead."""
+    long_names = [n for n in RECORD_FIELDS if len(n) > DBF_NAME_LIMIT]
+    return (
+        f"export format {asked!r}: Shapefile is not written, it would lose data: {len(long_names)} of the "
+        f"{len(RECORD_FIELDS)} frame fields have names longer than its {DBF_NAME_LIMIT} characters "
+        f"(e.g. {', '.join(long_names[:3])}; truncated names collide) and its Date fields drop the time of "
+        f"mid_utc. Use gpkg (GeoPackage, a default format: every field under its full name, UTC times to the "
+        f"microsecond; QGIS, ArcGIS and GDAL read it) or fgb (FlatGeobuf); if a Shapefile is required, "
+        f"convert the GeoPackage with ogr2ogr and choose the field names yourself"
+    )

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from icgt.sim.autopilot import SimAutopilot
 from icgt.sim.camera_card import write_card
-from icgt.sim.resources import DEVICE_PROGRAM, device_candidates
+from icgt.sim.resources import DEVICE_BINARY_ENV, DEVICE_PROGRAM, device_candidates
 from icgt.sim.scenario import Scenario, SimError
 from icgt.sim.truth import (
     ClockMaps,
@@ -32,7 +32,6 @@ from icgt.sim.truth import (
     write_exposure_truth,
     write_sensor_truth,
 )
-
 
 
 def find_device_binary() -> Path:

@@ -13,7 +13,8 @@ comes from the installed package:
 - `icgt sim hover --duration 4` (a packaged scenario by name) runs the packaged device and writes
   the truth files;
 - `icgt demo --scenario wheel_flight.toml` flies a 12 s flight end to end (recorder, ground
-  station, camera card) and says OK.
+  station, camera card) and says OK;
+- the sdist carries the C++ sources CMake needs (a wheel built from it compiles them under cpp/).
 """
 
 from __future__ import annotations
@@ -119,3 +120,17 @@ def test_icgt_demo_flies_from_the_wheel(installed: Installed) -> None:
     # ~12 at 2 fps for 6 s; on a loaded machine the ground station's start arrives late and fewer are taken
     assert summary["camera_card_images"] >= summary["matched"] >= 1
     assert Path(summary["mcap"]).is_relative_to(out)
+
+
+def test_sdist_carries_the_cpp_sources(tmp_path: Path) -> None:
+    """The sdist holds what CMake needs under cpp/ (a wheel built from it compiles there: pyproject's override)."""
+    import tarfile
+
+    code = f"from scikit_build_core.build import build_sdist; print(build_sdist({str(tmp_path)!r}))"
+    name = _run([sys.executable, "-c", code], timeout=300, cwd=ROOT / "host").stdout.split()[-1]
+    with tarfile.open(tmp_path / name) as sdist:
+        names = {n.split("/", 1)[1] for n in sdist.getnames() if "/" in n}
+    assert {"cpp/CMakeLists.txt", "cpp/firmware/CMakeLists.txt", "cpp/hil_sim/CMakeLists.txt"} <= names
+    assert {"cpp/hil_sim/device/main.cpp", "cpp/hil_sim/scenarios/pier_scan.toml", "LICENSE"} <= names
+    assert {"icgt/cli.py", "icgt/export/msg/FrameRecord.msg", "pyproject.toml"} <= names
+    assert not [n for n in names if "egg-info" in n or "__pycache__" in n]

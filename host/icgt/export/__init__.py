@@ -4,6 +4,9 @@
 
 - frames.csv: the ICGT paper's columns, then the whole frame record and the geometry (csv_export);
 - cameras.geojson / footprints.geojson: camera points and image footprints (geojson_export);
+- icgt.gpkg (GeoPackage, the default vector export), icgt.kml (absolute MSL heights) and with
+  ``--formats fgb`` cameras/footprints/footprints_face.fgb (FlatGeobuf), through GDAL (gis); no
+  Shapefile (its 10-character field names and dates without time would lose data: refused, said why);
 - geo.txt: OpenDroneMap's image geolocation file (odm);
 - exif_overrides.json: OpenSfM's per-image overrides (opensfm);
 - images/: geotagged copies of the JPEGs written by ExifTool (geotag_writer; tags in exif_tags,

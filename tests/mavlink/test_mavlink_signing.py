@@ -96,7 +96,7 @@ def signed_camera(tmp_path):
 
 
 def test_signed_commands_work_and_our_replies_are_signed(signed_camera):
-    camera, shots, peer, _ = signed_camera
+    _camera, shots, peer, _ = signed_camera
     gcs = peer(KEY)
     since = gcs.mark()
     gcs.command_long(1, 100, M.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 1, 1)
@@ -134,3 +134,17 @@ def test_a_replayed_signed_command_is_refused(signed_camera):
     gcs.send_raw(buf)  # the same frame again: its timestamp is not newer
     assert wait_until(lambda: camera.counters["badly_signed_commands"] == 1)
     assert shots.n == 1
+
+
+def test_a_forged_frame_with_a_future_timestamp_does_not_block_the_genuine_stream(signed_camera):
+    camera, shots, peer, _ = signed_camera
+    gcs = peer(KEY)
+    forger = peer(key_from_passphrase("guessed"))
+    forger.mav.signing.link_id = gcs.mav.signing.link_id  # the same stream: link id, system, component
+    forger.mav.signing.timestamp = gcs.mav.signing.timestamp + 10**9  # far ahead
+    forger.command_long(1, 100, M.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 1, 9)
+    assert wait_until(lambda: camera.counters["badly_signed_commands"] == 1)
+    since = gcs.mark()
+    gcs.command_long(1, 100, M.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 1, 1)
+    ack = gcs.wait_for("COMMAND_ACK", lambda m: m.command == M.MAV_CMD_IMAGE_START_CAPTURE, since=since)
+    assert ack.result == M.MAV_RESULT_ACCEPTED and shots.n == 1

@@ -6,8 +6,8 @@ MAV_CMD_REQUEST_MESSAGE and the older MAV_CMD_REQUEST_CAMERA_INFORMATION / _CAME
 _STORAGE_INFORMATION / _CAMERA_CAPTURE_STATUS / _CAMERA_IMAGE_CAPTURE that QGroundControl 4.x sends),
 executes IMAGE_START_CAPTURE / IMAGE_STOP_CAPTURE / DO_DIGICAM_CONTROL through the recorder's
 `CaptureHandler`, answers every command it acts on with COMMAND_ACK, reports CAMERA_CAPTURE_STATUS on
-change and at 1 Hz while capturing, and sends CAMERA_IMAGE_CAPTURED for each exposure
-(`publish_image_captured`), keeping a bounded history for re-requests.
+change and at ``status_hz`` (1 Hz; idle too: MAVSDK's list_photos waits for one), and sends
+CAMERA_IMAGE_CAPTURED for each exposure (`publish_image_captured`), keeping every image for re-requests.
 
 Threads: the link's reader only filters and enqueues; one worker thread ("icgt-camera") runs the handler,
 sends the replies and the periodic messages. A slow handler delays only the ACK; a ground station that
@@ -460,13 +460,12 @@ class CameraComponent:
         while not self._stop.is_set():
             now = self._clock()
             with self._lock:
-                capturing = self._image_status != IMAGE_STATUS_IDLE
                 dirty = self._status_dirty
             try:
                 if now >= next_hb:
                     self._send_heartbeat()
                     next_hb = now + hb_period
-                if dirty or (capturing and now >= next_status):
+                if dirty or now >= next_status:  # idle too: MAVSDK lists photos only once it has a status
                     self._send_capture_status()
                     next_status = now + status_period
             except Exception:
@@ -476,7 +475,7 @@ class CameraComponent:
             if self._resend and now >= next_resend:
                 self._resend_one()
                 next_resend = now + self._resend_period_ns
-            deadline = min(next_hb, next_status) if capturing else next_hb
+            deadline = min(next_hb, next_status)
             if self._resend:
                 deadline = min(deadline, next_resend)
             wait_s = min(max(0.0, (deadline - self._clock()) / 1e9), 0.5)

@@ -14,6 +14,7 @@ timestamp seen per stream, must survive that), and one for its output.
 from __future__ import annotations
 
 import hashlib
+import hmac
 import logging
 import os
 import stat
@@ -31,6 +32,7 @@ log = logging.getLogger(__name__)
 
 _EPOCH_2015_S = 1_420_070_400  # MAVLink signing timestamps count 10 us units since 2015-01-01 00:00 UTC
 _KEY_BYTES = 32
+_NEW_STREAM_SLACK = 60 * 100_000  # a new stream may start up to one minute behind (10 us units), as MAVLink says
 
 
 class SigningError(IcgtError):
@@ -101,6 +103,27 @@ class SigningState:
 
     def attach_input(self, parser: Any) -> None:
         parser.signing = self._rx
+        # pymavlink's own check records a stream's timestamp before it compares the signature, so one forged
+        # frame with a timestamp far ahead would make every genuine frame of that stream look replayed.
+        parser.check_signature = self._check
+
+    def _check(self, msgbuf: bytearray, src_system: int, src_component: int) -> bool:
+        """A frame's signature is valid (our key) and its timestamp newer than its stream's last one."""
+        rx = self._rx
+        expected = hashlib.sha256(bytes(rx.secret_key) + bytes(msgbuf[:-6])).digest()[:6]
+        if not hmac.compare_digest(expected, bytes(msgbuf[-6:])):
+            return False
+        link_id = msgbuf[-13]
+        stamp = int.from_bytes(bytes(msgbuf[-12:-6]), "little")
+        stream = (link_id, src_system, src_component)
+        last = rx.stream_timestamps.get(stream)
+        if last is not None and stamp <= last:
+            return False  # replayed (or reordered): refused
+        if last is None and stamp + _NEW_STREAM_SLACK < rx.timestamp:
+            return False  # a new stream whose clock is far behind ours: an old recording played back
+        rx.stream_timestamps[stream] = stamp
+        rx.timestamp = max(rx.timestamp, stamp)
+        return True
 
     def attach_output(self, packer: Any) -> None:
         # a timestamp behind the wall clock (a long idle link) would be refused as stale by receivers

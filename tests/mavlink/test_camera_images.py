@@ -60,9 +60,7 @@ def test_pose_verdicts():
 
 
 def gpi(alt_m, rel_m, lat=473977419, lon=85455000):
-    return mavlink2.MAVLink_global_position_int_message(
-        0, lat, lon, round(alt_m * 1e3), round(rel_m * 1e3), 0, 0, 0, 0
-    )
+    return mavlink2.MAVLink_global_position_int_message(0, lat, lon, round(alt_m * 1e3), round(rel_m * 1e3), 0, 0, 0, 0)
 
 
 def test_home_altitude_is_interpolated_and_ignores_samples_without_a_fix():

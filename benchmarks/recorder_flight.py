@@ -83,11 +83,18 @@ def main() -> int:
             peer_cm.append(stale_ns * 1e-9 * speed * 100.0)
 
     pose_flags = {"stale_pose", "pose_extrapolated", "no_fix", "no_attitude"}
+    seq_of_image: dict[int, int] = {}  # MAVLink image index -> frame_seq (the log's /camera/images)
+    with flight.mcap.open("rb") as f:
+        for _, _, m in make_reader(f).iter_messages(topics=["/camera/images"]):
+            rec = json.loads(m.data)
+            seq_of_image[int(rec["image_index"])] = int(rec["frame_seq"])
+    by_seq = {int(fr["frame_seq"]): fr for fr in frames}
     mid_by_index = {}
-    for fr in frames:
+    for index, seq in seq_of_image.items():
+        fr = by_seq[seq]
         t = truth.get(int(fr["start_device_us"]))
-        if t is not None and fr["image_index"] and not pose_flags & set(fr["flags"]):
-            mid_by_index[fr["image_index"]] = int(t["mid_host_monotonic_ns"])
+        if t is not None and not pose_flags & set(fr["flags"]):
+            mid_by_index[index] = int(t["mid_host_monotonic_ns"])
     latency_ms = [
         (rx - mid_by_index[m.image_index]) / 1e6
         for m, rx in zip(flight.gcs.images, flight.gcs.image_rx_ns, strict=True)

@@ -42,18 +42,26 @@ def free_udp_port() -> int:
         return port
 
 
-def recorder_config_text(sc: Scenario, out_dir: Path) -> str:
+def recorder_config_text(
+    sc: Scenario,
+    out_dir: Path,
+    *,
+    ground_stations: tuple[int, ...] = (GCS_SYSTEM,),
+    signing_key_file: Path | None = None,
+) -> str:
     """The recorder configuration a crew would write for this airframe (from the scenario's camera)."""
     cam, cap, sen = sc.camera, sc.camera.capture, sc.sensors
     n = sc.structure.normal
+    signing = f'signing_key_file = "{signing_key_file}"' if signing_key_file is not None else ""
     return f"""# written by icgt demo for scenario {sc.name}
 [device]
 set_rtc = true
 
 [mavlink]
 system_id = {sc.autopilot.system_id}
-ground_station_systems = [{GCS_SYSTEM}]
+ground_station_systems = [{", ".join(str(g) for g in ground_stations)}]
 global_position_hz = 50.0
+{signing}
 
 [capture]
 mode = "{cap.mode}"

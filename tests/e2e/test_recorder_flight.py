@@ -65,15 +65,23 @@ def test_ground_station_starts_and_stops_capture_and_sees_the_images(flight: Fli
     assert acks[mavutil.mavlink.MAV_CMD_IMAGE_START_CAPTURE] == mavutil.mavlink.MAV_RESULT_ACCEPTED
     assert acks[mavutil.mavlink.MAV_CMD_IMAGE_STOP_CAPTURE] == mavutil.mavlink.MAV_RESULT_ACCEPTED
     assert flight.gcs.camera_seen and flight.gcs.camera_info is not None
-    by_index = {f["image_index"]: f for f in frames if f["image_index"]}
-    images = [m for m in flight.gcs.images if m.image_index in by_index]
+    # MAVLink image indices count every image from 0 (the manual shot too); /camera/images maps them to frames.
+    published = {r["image_index"]: r for r in messages(flight, "/camera/images")}
+    assert sorted(published) == list(range(len(frames)))
+    by_seq = {f["frame_seq"]: f for f in frames}
+    images = [m for m in flight.gcs.images if m.image_index in published]
     # Images published while the autopilot link was down (4 s of 13) never reach the ground station.
-    assert len(images) >= len(by_index) - 25
+    assert len(images) >= len(frames) - 25
     for m in images:
-        f = by_index[m.image_index]
-        if f.get("lat_deg") is not None:
+        record = published[m.image_index]
+        f = by_seq[record["frame_seq"]]
+        assert record["device_image_index"] == f["image_index"]
+        assert bool(m.capture_result) == record["capture_result"]
+        if record["position_published"]:
             assert abs(m.lat / 1e7 - f["lat_deg"]) < 2e-7
             assert abs(m.lon / 1e7 - f["lon_deg"]) < 2e-7
+        else:  # a poor pose: nothing a ground station could take for a fix
+            assert (m.lat, m.lon, m.alt, m.relative_alt) == (0, 0, 0, 0) and m.capture_result == 0
 
 
 def test_unplugged_device_is_reconnected_and_the_outage_recorded(flight: Flight) -> None:

@@ -75,7 +75,14 @@ class Rig:
         )
         self.camera = CameraComponent(
             self.link,
-            CameraConfig(output_dir=tmp_path / "images", info=info, status_hz=5.0, heartbeat_hz=10.0),
+            CameraConfig(
+                output_dir=tmp_path / "images",
+                info=info,
+                status_hz=5.0,
+                heartbeat_hz=10.0,
+                retransmit_window_s=0.5,
+                log_period_s=0.5,
+            ),
             self.recorder,
             on_rejected=self.rejected.append,
             on_command=self.records.append,
@@ -191,6 +198,21 @@ def test_duplicate_single_shot_sequence_is_acked_but_not_executed_twice(rig):
     assert rig.recorder.count("shoot") == 2
 
 
+def test_reused_sequence_number_from_a_restarted_client_is_a_new_photo(rig):
+    since = rig.command(M.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 1, 1)
+    rig.ack(M.MAV_CMD_IMAGE_START_CAPTURE, since)
+    since = rig.command(M.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 1, 1, confirmation=1)  # its retransmission
+    rig.ack(M.MAV_CMD_IMAGE_START_CAPTURE, since)
+    assert rig.recorder.count("shoot") == 1
+    time.sleep(0.7)  # past the retransmit window (0.5 s in this rig), within the 10 s memory
+    since = rig.command(M.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 1, 1)  # a restarted client counts from 1 again
+    assert rig.ack(M.MAV_CMD_IMAGE_START_CAPTURE, since).result == ACCEPTED
+    assert rig.recorder.count("shoot") == 2
+    since = rig.command(M.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 1, 1, confirmation=2)  # a late resend of it
+    rig.ack(M.MAV_CMD_IMAGE_START_CAPTURE, since)
+    assert rig.recorder.count("shoot") == 2
+
+
 def test_retransmission_without_sequence_is_not_executed_twice(rig):
     since = rig.command(M.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 1, 0)
     rig.command(M.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 1, 0, confirmation=1)  # QGC's resend
@@ -218,19 +240,93 @@ def test_autopilot_may_command_the_camera(rig):
     assert rig.recorder.count("shoot") == 1
 
 
-def test_foreign_system_is_ignored_and_reported(rig):
+def test_foreign_system_is_denied_and_reported(rig):
     intruder = Peer(42, 190, rig.port)
     try:
         since = rig.command(M.MAV_CMD_IMAGE_START_CAPTURE, 0, 1.0, 0, peer=intruder)
-        assert wait_until(lambda: len(rig.rejected) == 1)
-        time.sleep(0.2)
-        assert intruder.messages("COMMAND_ACK", since) == []
+        ack = rig.ack(M.MAV_CMD_IMAGE_START_CAPTURE, since, peer=intruder)
+        assert ack.result == M.MAV_RESULT_DENIED and (ack.target_system, ack.target_component) == (42, 190)
         assert rig.recorder.calls == []
         rej = rig.rejected[0]
         assert (rej.src_system, rej.src_component, rej.command) == (42, 190, M.MAV_CMD_IMAGE_START_CAPTURE)
-        assert rig.camera.counters["rejected_commands"] == 1
+        assert "not an allowed ground station" in rej.reason
+        c = rig.camera.counters
+        assert c["rejected_commands"] == c["denied_systems"] == c["refusal_acks_sent"] == 1
     finally:
         intruder.close()
+
+
+def test_mavsdk_system_id_is_allowed_by_default(rig):
+    mavsdk = Peer(245, 190, rig.port)
+    try:
+        since = rig.command(M.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 1, 1, peer=mavsdk)
+        assert rig.ack(M.MAV_CMD_IMAGE_START_CAPTURE, since, peer=mavsdk).result == ACCEPTED
+        assert rig.recorder.count("shoot") == 1
+    finally:
+        mavsdk.close()
+
+
+def test_refusal_flood_is_rate_limited_logged_in_summaries_and_does_not_delay_a_command(rig, caplog):
+    intruder = Peer(42, 190, rig.port)
+    try:
+        with caplog.at_level("WARNING", logger="icgt.mavlink.camera"):
+            since = intruder.mark()
+            for i in range(400):
+                intruder.command_long(1, 100, M.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 1, i + 1)
+            t0 = time.monotonic()
+            gsince = rig.command(M.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 1, 77)
+            assert rig.ack(M.MAV_CMD_IMAGE_START_CAPTURE, gsince).result == ACCEPTED
+            assert time.monotonic() - t0 < 1.0  # generous: the refusals never queue ahead of it
+            assert wait_until(lambda: rig.camera.counters["denied_systems"] == 400)
+            time.sleep(0.7)  # past the log period: the pending summary is written
+        acks = [a for a in intruder.messages("COMMAND_ACK", since) if a.target_system == 42]  # all peers hear all
+        c = rig.camera.counters
+        assert 1 <= len(acks) <= 20 and all(a.result == M.MAV_RESULT_DENIED for a in acks)
+        assert c["refusal_acks_sent"] + c["refusal_acks_suppressed"] == 400
+        lines = [r.getMessage() for r in caplog.records if "denied commands" in r.getMessage()]
+        assert 2 <= len(lines) <= 5
+        assert "400 in total" in lines[-1]
+        assert rig.recorder.count("shoot") == 1
+    finally:
+        intruder.close()
+
+
+def test_queue_overflow_is_answered_temporarily_rejected_and_counted(tmp_path):
+    gate = threading.Event()
+
+    class Slow(FakeRecorder):
+        def shoot(self):
+            gate.wait(5)
+            return super().shoot()
+
+    port = free_udp_port()
+    link = MavlinkLink(LinkConfig(f"udpin:127.0.0.1:{port}", request_rates=False, timesync=False))
+    camera = CameraComponent(link, CameraConfig(output_dir=tmp_path, command_queue=2, log_period_s=0.2), Slow())
+    link.start()
+    camera.start()
+    gcs = Peer(255, 190, port)
+    try:
+        gcs.send(gcs.mav.heartbeat_encode(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 4))
+        assert wait_until(lambda: len(link._conn.clients) == 1)
+        since = gcs.mark()
+        for i in range(8):
+            gcs.command_long(1, 100, M.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 1, i + 1)
+
+        def busy():
+            return [a for a in gcs.messages("COMMAND_ACK", since) if a.result == M.MAV_RESULT_TEMPORARILY_REJECTED]
+
+        assert wait_until(lambda: camera.counters["queue_overflows"] >= 4)
+        assert wait_until(lambda: len(busy()) == camera.counters["refusal_acks_sent"])
+        c = camera.counters
+        assert c["refusal_acks_sent"] + c["refusal_acks_suppressed"] == c["queue_overflows"] == c["rejected_commands"]
+        gate.set()
+        answered = 8 - c["refusal_acks_suppressed"]  # past the ACK rate limit: counted, not answered
+        assert wait_until(lambda: len(gcs.messages("COMMAND_ACK", since)) == answered, timeout=5)
+    finally:
+        gate.set()
+        gcs.close()
+        camera.stop()
+        link.stop()
 
 
 def test_commands_for_other_components_or_systems_are_ignored(rig):
@@ -272,7 +368,6 @@ def test_handler_results_map_to_acks(rig):
 
 def image(index, **kw):
     values = dict(
-        image_index=index,
         time_boot_ms=123_456,
         time_utc_us=1_700_000_000_123_456,
         lat_deg=47.3977419,
@@ -291,7 +386,7 @@ def image(index, **kw):
 def test_camera_image_captured_round_trip_and_re_request(rig):
     since = rig.gcs.mark()
     for i in range(3):
-        assert rig.camera.publish_image_captured(image(i))
+        assert rig.camera.publish_image_captured(image(i)).image_index == i
     got = rig.gcs.wait_for("CAMERA_IMAGE_CAPTURED", lambda m: m.image_index == 2, since=since)
     assert from_camera(got)
     assert got.lat == 473_977_419 and got.lon == -1_220_840_575
@@ -309,6 +404,13 @@ def test_camera_image_captured_round_trip_and_re_request(rig):
     assert rig.gcs.wait_for("CAMERA_IMAGE_CAPTURED", since=since).image_index == 0
     since = rig.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_CAMERA_IMAGE_CAPTURED, 99)
     assert rig.ack(M.MAV_CMD_REQUEST_MESSAGE, since).result == M.MAV_RESULT_DENIED
+    # all (-1), a range (param3 = last index) and "this and every later one" (param3 = -1)
+    for p2, p3, want in ((-1, 0, [0, 1, 2]), (0, 1, [0, 1]), (1, -1, [1, 2])):
+        since = rig.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_CAMERA_IMAGE_CAPTURED, p2, p3)
+        assert rig.ack(M.MAV_CMD_REQUEST_MESSAGE, since).result == ACCEPTED
+        assert wait_until(lambda: len(rig.gcs.messages("CAMERA_IMAGE_CAPTURED", since)) == len(want))  # noqa: B023
+        time.sleep(0.1)
+        assert [m.image_index for m in rig.gcs.messages("CAMERA_IMAGE_CAPTURED", since)] == want
     # no position (no 3D fix): zeros and NaN attitude, result unchanged
     since = rig.gcs.mark()
     rig.camera.publish_image_captured(image(3, lat_deg=None, lon_deg=None, alt_msl_m=None, q_wxyz=None))
@@ -324,7 +426,7 @@ def test_count_limited_capture_returns_to_idle(rig):
     assert rig.camera.capture_status.image_status == 3
     rig.camera.publish_image_captured(image(0))
     rig.camera.publish_image_captured(image(1))
-    assert rig.camera.capture_status == type(rig.camera.capture_status)(0, 0.0, 2)
+    assert rig.camera.capture_status == type(rig.camera.capture_status)(0, 0.0, 2)  # image_count = last index + 1
     rig.gcs.wait_for("CAMERA_CAPTURE_STATUS", lambda m: m.image_status == 0 and m.image_count == 2, since=since)
 
 

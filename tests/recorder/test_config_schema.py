@@ -23,6 +23,8 @@ BAD: list[tuple[str, str, object]] = [
     ("mavlink", "ground_station_systems", []),
     ("mavlink", "global_position_hz", 1e9),
     ("mavlink", "global_position_hz", 0),
+    ("mavlink", "signing_key_file", ""),
+    ("mavlink", "signing_key_file", 7),
     ("capture", "mode", "burst"),
     ("capture", "interval_s", 0.0),
     ("capture", "interval_s", -1.0),

@@ -6,43 +6,65 @@ MAV_CMD_REQUEST_MESSAGE and the older MAV_CMD_REQUEST_CAMERA_INFORMATION / _CAME
 _STORAGE_INFORMATION / _CAMERA_CAPTURE_STATUS / _CAMERA_IMAGE_CAPTURE that QGroundControl 4.x sends),
 executes IMAGE_START_CAPTURE / IMAGE_STOP_CAPTURE / DO_DIGICAM_CONTROL through the recorder's
 `CaptureHandler`, answers every command it acts on with COMMAND_ACK, reports CAMERA_CAPTURE_STATUS on
-change and at 1 Hz while capturing, and sends CAMERA_IMAGE_CAPTURED for each exposure
-(`publish_image_captured`), keeping a bounded history for re-requests.
+change and at ``status_hz`` (1 Hz; idle too: MAVSDK's list_photos waits for one), and sends
+CAMERA_IMAGE_CAPTURED for each exposure (`publish_image_captured`), keeping every image for re-requests.
 
-Threads: the link's reader only filters and enqueues; one worker thread ("icgt-camera") runs the handler,
-sends the replies and the periodic messages. A slow handler delays only the ACK; a ground station that
+Threads: the link's reader only filters, refuses and enqueues (``on_rejected`` runs there: it must not
+block); one worker thread ("icgt-camera") runs the handler, sends the replies and the periodic messages
+(``on_command`` runs there). A slow handler delays only the ACK; a ground station that
 re-sends meanwhile is recognised as a retransmission (see below) and not executed twice.
 
 Who may command it: COMMAND_LONG / COMMAND_INT must target our system (or 0) and our component (or 0,
-broadcast); others are not for us and ignored silently. Commands for us from a system id outside
-``ground_station_systems`` and the autopilot's system are ignored (no ACK) and reported to ``on_rejected``.
-Broadcast commands we do not implement get no ACK (the addressed component answers); targeted ones get
-MAV_RESULT_UNSUPPORTED.
+broadcast); others are not for us and ignored silently. With a signing key on the link
+(``require_signing``), a command without a valid signature (unsigned, another key, replayed) is not
+trusted: no answer at all, counted and logged (rate-limited). A command from a system outside
+``ground_station_systems`` and the autopilot's system is answered COMMAND_ACK DENIED (at most
+``refusal_ack_hz`` such answers per second), counted and logged (one line per ``log_period_s`` with the
+counts). These checks run on the link's reader and never queue, so a flood of refused commands does not
+delay a legitimate one. A command that finds the queue full (``command_queue``) is answered
+MAV_RESULT_TEMPORARILY_REJECTED (same rate limit) and counted. Broadcast commands we do not implement get
+no ACK (the addressed component answers); targeted ones get MAV_RESULT_UNSUPPORTED.
 
-Duplicates: an IMAGE_START_CAPTURE single shot (param3 = 1) with sequence param4 > 0, or a
-DO_DIGICAM_CONTROL with command identity param6 > 0, already executed from the same sender within
-``dedupe_window_s`` is ACKed again with the first result but not executed. So is a retransmission
-(confirmation > 0) of a start/stop/shoot identical to one executed within the window.
+Duplicates: a command is executed once however often it is transmitted. A retransmission is a command
+with confirmation > 0 (the command protocol's rule), or one with the same capture sequence number
+(IMAGE_START_CAPTURE single shot, param4 > 0; DO_DIGICAM_CONTROL command identity, param6 > 0) from the
+same sender within ``retransmit_window_s`` of the first (for clients that resend without counting
+confirmation). It gets the first ACK again, not a second photo. A first transmission (confirmation 0)
+that reuses a sequence number after that window is a new command (a ground station that restarted, or a
+second client with the same ids, counts from 1 again) and is executed.
+
+Images: see `icgt.mavlink.camera_images` (indices, the poor-pose policy, history, re-requests of one, a
+range or all images, sent paced at ``resend_rate_hz``).
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
-import enum
 import logging
 import math
 import queue
 import shutil
 import threading
 import time
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Protocol
 
-from icgt.errors import IcgtError
+from icgt.mavlink.camera_images import CameraError, CapturedImage, ImageHistory, encode_image_captured, image_range
+from icgt.mavlink.camera_types import (
+    CameraConfig,
+    CameraInfo,
+    CaptureHandler,
+    CaptureStatus,
+    CommandRecord,
+    CommandResult,
+    HandlerResult,
+    RejectedCommand,
+)
 from icgt.mavlink.link import MavlinkLink, MavlinkMessage, Subscription, mavlink2
+from icgt.mavlink.ratelimit import ThrottledLog, TokenBucket
+from icgt.mavlink.signing import frame_has_signature
 
 __all__ = [
     "CameraComponent",
@@ -65,134 +87,6 @@ IMAGE_STATUS_IDLE = 0
 IMAGE_STATUS_CAPTURING = 1
 IMAGE_STATUS_INTERVAL_IDLE = 2
 IMAGE_STATUS_INTERVAL_CAPTURING = 3
-
-
-class CameraError(IcgtError):
-    """A camera message cannot be built from the values given (e.g. a latitude out of range)."""
-
-
-class CommandResult(enum.IntEnum):
-    """MAV_RESULT values a handler may return."""
-
-    ACCEPTED = 0
-    TEMPORARILY_REJECTED = 1
-    DENIED = 2
-    UNSUPPORTED = 3
-    FAILED = 4
-    IN_PROGRESS = 5
-
-
-@dataclasses.dataclass(frozen=True, slots=True)
-class HandlerResult:
-    """A handler's answer with detail: ``reason`` goes to the log, ``progress`` and ``result_param2`` into
-    the COMMAND_ACK (MAVLink uses progress as result_param1 for reasons of a denial)."""
-
-    result: CommandResult
-    reason: str = ""
-    progress: int = 0
-    result_param2: int = 0
-
-
-class CaptureHandler(Protocol):
-    """What the recorder provides. Called on the camera's worker thread; return promptly (< ~1 s)."""
-
-    def start(self, interval_s: float, count: int) -> CommandResult | HandlerResult:
-        """Start interval capture: one exposure every ``interval_s``, ``count`` in total (0 = until stopped)."""
-        ...
-
-    def stop(self) -> CommandResult | HandlerResult:
-        """Stop interval capture."""
-        ...
-
-    def shoot(self) -> CommandResult | HandlerResult:
-        """Take one exposure now."""
-        ...
-
-
-@dataclasses.dataclass(frozen=True, slots=True)
-class CameraInfo:
-    """What CAMERA_INFORMATION announces. Unknown focal length / sensor size: NaN; resolution: 0."""
-
-    vendor: str = "ICGT"
-    model: str = "ICGT geotagging camera"
-    firmware_version: tuple[int, int, int, int] = (0, 1, 0, 0)  # major, minor, patch, dev
-    focal_length_mm: float = math.nan
-    sensor_size_h_mm: float = math.nan
-    sensor_size_v_mm: float = math.nan
-    resolution_h: int = 0
-    resolution_v: int = 0
-    lens_id: int = 0
-    cam_definition_uri: str = ""
-    cam_definition_version: int = 0
-
-
-@dataclasses.dataclass(frozen=True, slots=True)
-class CameraConfig:
-    """``output_dir``: where images are stored (STORAGE_INFORMATION reports its file system).
-    ``autopilot_system`` None: the link's autopilot system."""
-
-    output_dir: Path
-    info: CameraInfo = dataclasses.field(default_factory=CameraInfo)
-    ground_station_systems: frozenset[int] = frozenset({255})
-    autopilot_system: int | None = None
-    heartbeat_hz: float = 1.0
-    status_hz: float = 1.0
-    image_history: int = 1000
-    dedupe_window_s: float = 10.0
-    command_queue: int = 256
-
-
-@dataclasses.dataclass(frozen=True, slots=True)
-class CapturedImage:
-    """One exposure for CAMERA_IMAGE_CAPTURED, in SI units (the component converts to MAVLink's).
-
-    ``time_boot_ms``: use `CameraComponent.time_boot_ms` for the component's own boot clock (what MAVLink
-    specifies). ``time_utc_us``: 0 when unknown. A position or attitude that is None (no 3D fix / unknown)
-    is sent as 0 (lat, lon, alt) and NaN (q); ``capture_result`` stays whatever the exposure was."""
-
-    image_index: int
-    time_boot_ms: int
-    time_utc_us: int
-    lat_deg: float | None
-    lon_deg: float | None
-    alt_msl_m: float | None
-    relative_alt_m: float | None
-    q_wxyz: tuple[float, float, float, float] | None
-    capture_result: bool = True
-    file_url: str = ""
-    camera_id: int = 0
-
-
-@dataclasses.dataclass(frozen=True, slots=True)
-class RejectedCommand:
-    """A command addressed to us from a system id that may not command the camera."""
-
-    host_ns: int
-    src_system: int
-    src_component: int
-    command: int
-    reason: str
-
-
-@dataclasses.dataclass(frozen=True, slots=True)
-class CommandRecord:
-    """A command the camera answered, for the log."""
-
-    host_ns: int
-    src_system: int
-    src_component: int
-    command: int
-    params: tuple[float, ...]
-    result: int | None  # MAV_RESULT sent, None when no ACK was sent (unknown broadcast)
-    duplicate: bool
-    reason: str
-
-
-@dataclasses.dataclass(frozen=True, slots=True)
-class CaptureStatus:
-    image_status: int  # 0 idle, 1 capturing, 2 interval set idle, 3 interval set capturing
-    interval_s: float
-    image_count: int
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -225,6 +119,29 @@ def _fixed_bytes(text: str, size: int) -> list[int]:
 
 def _truncate_utf8(text: str, size: int) -> bytes:
     return text.encode("utf-8")[:size].decode("utf-8", errors="ignore").encode("utf-8")
+
+
+def _command_params(rec: MavlinkMessage) -> tuple[tuple[float, float, float, float, float, float, float], int]:
+    msg = rec.msg
+    if rec.type == "COMMAND_INT":
+        return (
+            float(msg.param1),
+            float(msg.param2),
+            float(msg.param3),
+            float(msg.param4),
+            float(msg.x),
+            float(msg.y),
+            float(msg.z),
+        ), 0
+    return (
+        float(msg.param1),
+        float(msg.param2),
+        float(msg.param3),
+        float(msg.param4),
+        float(msg.param5),
+        float(msg.param6),
+        float(msg.param7),
+    ), int(msg.confirmation)
 
 
 def _disk_mib(path: Path) -> tuple[float, float, float] | None:
@@ -273,12 +190,29 @@ class CameraComponent:
         self._interval_s = 0.0
         self._count_target = 0
         self._images_since_start = 0
-        self._image_count = 0
         self._status_dirty = False
-        self._history: OrderedDict[int, CapturedImage] = OrderedDict()
-        self._recent: OrderedDict[tuple[object, ...], tuple[int, _Outcome]] = OrderedDict()
-        self._dropped_commands = 0
-        self._rejected = 0
+        self.images = ImageHistory()
+        self._resend: deque[range] = deque()  # re-requested images still to send (worker only)
+        self._resend_period_ns = int(1e9 / max(config.resend_rate_hz, 1e-3))
+        # executed commands by key: (first receipt, expiry, outcome)
+        self._recent: OrderedDict[tuple[object, ...], tuple[int, int, _Outcome]] = OrderedDict()
+        if config.require_signing and link.signing is None:
+            raise CameraError("require_signing needs a link with a signing key (LinkConfig.signing_key)")
+        # refusals: counted here, logged throttled, answered at most refusal_ack_hz
+        self._refusal_acks = TokenBucket(config.refusal_ack_hz, max(1, int(config.refusal_ack_hz)))
+        period = config.log_period_s
+        self._log_untrusted = ThrottledLog(log, "ignored commands without a valid signature", period_s=period)
+        self._log_denied = ThrottledLog(log, "denied commands from systems not allowed", period_s=period)
+        self._log_overflow = ThrottledLog(log, "commands refused, camera queue full", period_s=period)
+        self._counts = {
+            "rejected_commands": 0,  # every command addressed to us that was not executed
+            "denied_systems": 0,  # ... from a system that may not command the camera (ACK DENIED)
+            "unsigned_commands": 0,  # ... without a signature while signing is required (no ACK)
+            "badly_signed_commands": 0,  # ... with a signature that is not valid (no ACK)
+            "queue_overflows": 0,  # ... that found the queue full (ACK TEMPORARILY_REJECTED)
+            "refusal_acks_sent": 0,
+            "refusal_acks_suppressed": 0,  # refusals past the rate limit: counted, not answered
+        }
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -299,6 +233,8 @@ class CameraComponent:
         if self._thread is not None:
             self._thread.join(timeout_s)
             self._thread = None
+        for throttled in (self._log_untrusted, self._log_denied, self._log_overflow):
+            throttled.flush()
 
     def __enter__(self) -> CameraComponent:
         self.start()
@@ -316,12 +252,13 @@ class CameraComponent:
     @property
     def capture_status(self) -> CaptureStatus:
         with self._lock:
-            return CaptureStatus(self._image_status, self._interval_s, self._image_count)
+            return CaptureStatus(self._image_status, self._interval_s, len(self.images))
 
     @property
     def counters(self) -> dict[str, int]:
+        """Refusals by kind (see ``_counts`` in __init__) and the images published."""
         with self._lock:
-            return {"dropped_commands": self._dropped_commands, "rejected_commands": self._rejected}
+            return {**self._counts, "images": len(self.images)}
 
     def set_capturing(self, capturing: bool, interval_s: float = 0.0) -> None:
         """The recorder reports a capture state change the camera did not cause (e.g. it stopped itself)."""
@@ -330,24 +267,22 @@ class CameraComponent:
             self._set_status_locked(status, interval_s if capturing else 0.0)
         self._wake()
 
-    def publish_image_captured(self, image: CapturedImage) -> bool:
-        """Send CAMERA_IMAGE_CAPTURED for one exposure and keep it for re-requests. Thread-safe.
+    def publish_image_captured(self, image: CapturedImage) -> CapturedImage:
+        """Give one exposure the next image index, keep it for re-requests and send CAMERA_IMAGE_CAPTURED.
+        Thread-safe. Returns the image with its index (sent or not: a send failure is counted by the link).
 
-        Raises CameraError for values MAVLink cannot carry. Returns whether it was sent."""
-        msg = self._image_message(image)
+        Raises CameraError for values MAVLink cannot carry (the image then gets no index)."""
+        encode_image_captured(self.link.mav, image)  # checks the values before an index is spent
         with self._lock:
-            self._history[image.image_index] = image
-            self._history.move_to_end(image.image_index)
-            while len(self._history) > self.config.image_history:
-                self._history.popitem(last=False)
-            self._image_count += 1
+            indexed = self.images.append(image)
             if self._image_status == IMAGE_STATUS_INTERVAL_CAPTURING and self._count_target > 0:
                 self._images_since_start += 1
                 if self._images_since_start >= self._count_target:
                     self._set_status_locked(IMAGE_STATUS_IDLE, 0.0)
         if self._status_dirty:
             self._wake()
-        return self.link.send(msg)
+        self.link.send(encode_image_captured(self.link.mav, indexed))
+        return indexed
 
     # ------------------------------------------------------------------ reader side (must not block)
     def _on_message(self, rec: MavlinkMessage) -> None:
@@ -356,40 +291,56 @@ class CameraComponent:
         if target_sys not in (0, self._system) or target_comp not in (0, self._component):
             return
         command = int(msg.command)
+        if self.config.require_signing and not msg.get_signed():
+            badly = frame_has_signature(msg)
+            kind = "badly_signed_commands" if badly else "unsigned_commands"
+            why = "an invalid signature (another key, or replayed)" if badly else "no signature"
+            reason = f"command {command} from {rec.src_system}:{rec.src_component} has {why}"
+            self._refused(rec, command, kind, reason, self._log_untrusted, None)
+            return
         if rec.src_system not in self._allowed:
-            reason = f"system {rec.src_system} is not an allowed ground station or the autopilot"
-            item: object = RejectedCommand(rec.rx_ns, rec.src_system, rec.src_component, command, reason)
-        else:
-            if rec.type == "COMMAND_INT":
-                params = (
-                    float(msg.param1),
-                    float(msg.param2),
-                    float(msg.param3),
-                    float(msg.param4),
-                    float(msg.x),
-                    float(msg.y),
-                    float(msg.z),
-                )
-                confirmation = 0
-            else:
-                params = (
-                    float(msg.param1),
-                    float(msg.param2),
-                    float(msg.param3),
-                    float(msg.param4),
-                    float(msg.param5),
-                    float(msg.param6),
-                    float(msg.param7),
-                )
-                confirmation = int(msg.confirmation)
-            item = _Command(
-                rec.rx_ns, rec.src_system, rec.src_component, command, confirmation, params, target_comp == 0
+            reason = (
+                f"command {command} from system {rec.src_system} (component {rec.src_component}): not an allowed "
+                f"ground station {sorted(self.config.ground_station_systems)} or the autopilot"
             )
+            self._refused(rec, command, "denied_systems", reason, self._log_denied, CommandResult.DENIED)
+            return
+        params, confirmation = _command_params(rec)
+        item = _Command(rec.rx_ns, rec.src_system, rec.src_component, command, confirmation, params, target_comp == 0)
         try:
             self._queue.put_nowait(item)
         except queue.Full:
-            with self._lock:
-                self._dropped_commands += 1
+            reason = f"command {command} from {rec.src_system}:{rec.src_component}: queue of {self._queue.maxsize} full"
+            self._refused(
+                rec, command, "queue_overflows", reason, self._log_overflow, CommandResult.TEMPORARILY_REJECTED
+            )
+
+    def _refused(
+        self,
+        rec: MavlinkMessage,
+        command: int,
+        kind: str,
+        reason: str,
+        throttled: ThrottledLog,
+        answer: CommandResult | None,
+    ) -> None:
+        """Count, log (throttled), answer (rate-limited; None: not at all) a command we do not execute."""
+        ack = answer is not None and self._refusal_acks.allow(rec.rx_ns)
+        with self._lock:
+            self._counts["rejected_commands"] += 1
+            self._counts[kind] += 1
+            if answer is not None:
+                self._counts["refusal_acks_sent" if ack else "refusal_acks_suppressed"] += 1
+        throttled.report(rec.rx_ns, reason)
+        if ack and answer is not None:
+            self.link.send(
+                self.link.mav.command_ack_encode(command, int(answer), 0, 0, rec.src_system, rec.src_component)
+            )
+        if self._on_rejected is not None:
+            try:
+                self._on_rejected(RejectedCommand(rec.rx_ns, rec.src_system, rec.src_component, command, reason))
+            except Exception:
+                log.exception("on_rejected callback raised")
 
     def _wake(self) -> None:
         with contextlib.suppress(queue.Full):
@@ -401,52 +352,49 @@ class CameraComponent:
         status_period = int(1e9 / max(self.config.status_hz, 1e-3))
         next_hb = self._clock()
         next_status = next_hb
+        next_resend = next_hb
         while not self._stop.is_set():
             now = self._clock()
             with self._lock:
-                capturing = self._image_status != IMAGE_STATUS_IDLE
                 dirty = self._status_dirty
             try:
                 if now >= next_hb:
                     self._send_heartbeat()
                     next_hb = now + hb_period
-                if dirty or (capturing and now >= next_status):
+                if dirty or now >= next_status:  # idle too: MAVSDK lists photos only once it has a status
                     self._send_capture_status()
                     next_status = now + status_period
             except Exception:
                 log.exception("camera periodic message failed")
-            deadline = min(next_hb, next_status) if capturing else next_hb
+            for throttled in (self._log_untrusted, self._log_denied, self._log_overflow):
+                throttled.tick(now)
+            if self._resend and now >= next_resend:
+                self._resend_one()
+                next_resend = now + self._resend_period_ns
+            deadline = min(next_hb, next_status)
+            if self._resend:
+                deadline = min(deadline, next_resend)
             wait_s = min(max(0.0, (deadline - self._clock()) / 1e9), 0.5)
             try:
-                item = self._queue.get(timeout=wait_s)
+                item = self._queue.get(timeout=wait_s) if wait_s > 0 else self._queue.get_nowait()
             except queue.Empty:
                 continue
             try:
                 if isinstance(item, _Command):
                     self._execute(item)
-                elif isinstance(item, RejectedCommand):
-                    self._report_rejected(item)
             except Exception:
                 log.exception("camera command handling failed")
 
-    def _report_rejected(self, rej: RejectedCommand) -> None:
-        with self._lock:
-            self._rejected += 1
-            n = self._rejected
-        if n <= 20 or n % 100 == 0:
-            log.warning(
-                "ignored command %d from %d:%d: %s (rejected #%d)",
-                rej.command,
-                rej.src_system,
-                rej.src_component,
-                rej.reason,
-                n,
-            )
-        if self._on_rejected is not None:
-            try:
-                self._on_rejected(rej)
-            except Exception:
-                log.exception("on_rejected callback raised")
+    def _resend_one(self) -> None:
+        span = self._resend[0]
+        image = self.images.get(span.start)
+        rest = span[1:]
+        if len(rest):
+            self._resend[0] = rest
+        else:
+            self._resend.popleft()
+        if image is not None:
+            self.link.send(encode_image_captured(self.link.mav, image))
 
     def _execute(self, cmd: _Command) -> None:
         now = self._clock()
@@ -454,10 +402,12 @@ class CameraComponent:
         lookup, record = self._dedupe_keys(cmd)
         outcome: _Outcome | None = None
         duplicate = False
+        retransmit_ns = int(self.config.retransmit_window_s * 1e9)
         for key in lookup:
             hit = self._recent.get(key)
-            if hit is not None:
-                outcome = dataclasses.replace(hit[1], reason="duplicate of " + hit[1].reason)
+            # a repeated sequence number is a retransmission if it says so (confirmation > 0) or comes soon
+            if hit is not None and (cmd.confirmation > 0 or cmd.rx_ns - hit[0] <= retransmit_ns):
+                outcome = dataclasses.replace(hit[2], reason="duplicate of " + hit[2].reason)
                 duplicate = True
                 break
         if outcome is None:
@@ -465,7 +415,8 @@ class CameraComponent:
             if record and outcome.result is not None:
                 expires = now + int(self.config.dedupe_window_s * 1e9)
                 for key in record:
-                    self._recent[key] = (expires, dataclasses.replace(outcome, after=None))
+                    self._recent[key] = (cmd.rx_ns, expires, dataclasses.replace(outcome, after=None))
+                    self._recent.move_to_end(key)
                 while len(self._recent) > 256:
                     self._recent.popitem(last=False)
         if outcome.result is not None:
@@ -520,7 +471,7 @@ class CameraComponent:
         return lookup, [*sequence, retransmission]
 
     def _expire_recent(self, now: int) -> None:
-        for key in [k for k, (expires, _) in self._recent.items() if expires <= now]:
+        for key in [k for k, (_, expires, _) in self._recent.items() if expires <= now]:
             del self._recent[key]
 
     # ------------------------------------------------------------------ command implementations
@@ -528,7 +479,7 @@ class CameraComponent:
         c = cmd.command
         p = cmd.params
         if c == mavlink2.MAV_CMD_REQUEST_MESSAGE:
-            return self._request_message(cmd, int(p[0]) if math.isfinite(p[0]) else -1, p[1])
+            return self._request_message(cmd, int(p[0]) if math.isfinite(p[0]) else -1, p[1], p[2])
         legacy = {
             mavlink2.MAV_CMD_REQUEST_CAMERA_INFORMATION: mavlink2.MAVLINK_MSG_ID_CAMERA_INFORMATION,
             mavlink2.MAV_CMD_REQUEST_CAMERA_SETTINGS: mavlink2.MAVLINK_MSG_ID_CAMERA_SETTINGS,
@@ -592,7 +543,7 @@ class CameraComponent:
             return _Outcome(int(answer), reason=what)
         return _Outcome(int(CommandResult.FAILED), reason=f"{what} returned {answer!r}")
 
-    def _request_message(self, cmd: _Command, msg_id: int, arg: float) -> _Outcome:
+    def _request_message(self, cmd: _Command, msg_id: int, arg: float, last: float = 0.0) -> _Outcome:
         send: Callable[[], None]
         if msg_id == mavlink2.MAVLINK_MSG_ID_CAMERA_INFORMATION:
             send = self._send_camera_information
@@ -606,19 +557,12 @@ class CameraComponent:
         elif msg_id == mavlink2.MAVLINK_MSG_ID_CAMERA_CAPTURE_STATUS:
             send = self._send_capture_status
         elif msg_id == mavlink2.MAVLINK_MSG_ID_CAMERA_IMAGE_CAPTURED:
-            with self._lock:
-                if not math.isfinite(arg):
-                    image = None
-                elif arg < 0:
-                    image = next(reversed(self._history.values()), None)
-                else:
-                    image = self._history.get(int(arg))
-            if image is None:
-                return _Outcome(int(CommandResult.DENIED), reason=f"image {arg:g} not in history")
-            found = image
+            wanted, why = image_range(arg, last, len(self.images))
+            if not wanted:
+                return _Outcome(int(CommandResult.DENIED), reason=why)
 
             def send() -> None:
-                self.link.send(self._image_message(found))
+                self._resend.append(wanted)
         else:
             if cmd.broadcast:
                 return _Outcome(None, reason=f"message {msg_id} not provided here")
@@ -693,7 +637,7 @@ class CameraComponent:
 
     def _send_capture_status(self) -> None:
         with self._lock:
-            status, interval, count = self._image_status, self._interval_s, self._image_count
+            status, interval, count = self._image_status, self._interval_s, len(self.images)
             self._status_dirty = False
         disk = _disk_mib(self.config.output_dir)
         msg = self.link.mav.camera_capture_status_encode(
@@ -709,37 +653,3 @@ class CameraComponent:
         if status == IMAGE_STATUS_IDLE:
             self._count_target = 0
             self._images_since_start = 0
-
-    def _image_message(self, image: CapturedImage) -> Any:
-        def scaled(value: float | None, scale: float, limit: int, what: str) -> int:
-            if value is None:
-                return 0
-            if not math.isfinite(value):
-                raise CameraError(f"{what} is not finite: {value}")
-            out = round(value * scale)
-            if abs(out) > limit:
-                raise CameraError(f"{what} out of range: {value}")
-            return out
-
-        lat = scaled(image.lat_deg, 1e7, 900_000_000, "latitude")
-        lon = scaled(image.lon_deg, 1e7, 1_800_000_000, "longitude")
-        alt = scaled(image.alt_msl_m, 1e3, 2**31 - 1, "altitude")
-        rel = scaled(image.relative_alt_m, 1e3, 2**31 - 1, "relative altitude")
-        q = [math.nan] * 4 if image.q_wxyz is None else [float(c) for c in image.q_wxyz]
-        if len(q) != 4:
-            raise CameraError("q_wxyz needs 4 components")
-        if not -(2**31) <= image.image_index < 2**31:
-            raise CameraError(f"image index out of range: {image.image_index}")
-        return self.link.mav.camera_image_captured_encode(
-            image.time_boot_ms & 0xFFFFFFFF,
-            max(0, image.time_utc_us),
-            image.camera_id & 0xFF,
-            lat,
-            lon,
-            alt,
-            rel,
-            q,
-            image.image_index,
-            1 if image.capture_result else 0,
-            _truncate_utf8(image.file_url, 205),
-        )

@@ -55,6 +55,7 @@ from icgt.mavlink.link_types import (
     Subscription,
     _RateJob,
 )
+from icgt.mavlink.signing import SigningState
 from icgt.mavlink.transport import is_datagram, open_transport
 
 __all__ = [
@@ -107,8 +108,13 @@ class MavlinkLink:
         self._ap_component: int | None = config.autopilot_component
         # One MAVLink 2 parser for input (it accepts v1 frames too) and one packer for output, both owned
         # here rather than by mavutil, whose dialect is a process-wide global switched by environment.
+        self.signing = (
+            SigningState(config.signing_key, config.signing_link_id) if config.signing_key is not None else None
+        )
         self._parser: Any = self._new_parser()
         self._packer: Any = mavlink2.MAVLink(None, srcSystem=config.system_id, srcComponent=config.component_id)
+        if self.signing is not None:
+            self.signing.attach_output(self._packer)
         self._conn: Any = None
         self._datagram = is_datagram(config.url)
         self._send_lock = threading.Lock()
@@ -300,8 +306,10 @@ class MavlinkLink:
             self._schedule_rates_locked()
 
     def stats(self) -> LinkStats:
+        signing = self.signing.counts if self.signing is not None else {}
         with self._lock:
             return LinkStats(
+                **signing,
                 messages_by_type=dict(self._by_type),
                 bad_frames=self._bad_frames,
                 v1_frames=self._v1,
@@ -412,6 +420,8 @@ class MavlinkLink:
     def _new_parser(self) -> Any:
         parser = mavlink2.MAVLink(None, srcSystem=self.config.system_id, srcComponent=self.config.component_id)
         parser.robust_parsing = True
+        if self.signing is not None:
+            self.signing.attach_input(parser)  # one replay-protection state for every parser of this link
         return parser
 
     def _feed(self, data: bytes, rx_ns: int) -> None:

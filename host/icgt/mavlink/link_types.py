@@ -148,6 +148,10 @@ class LinkConfig:
     # `UndecodedFrame`s (header only, no CRC check: kept raw, used for nothing). None decodes everything.
     decode_systems: frozenset[int] | None = None
     udp_receive_buffer_bytes: int = 4 * 1024 * 1024  # Linux's default (~208 KB) overflows in a parameter burst
+    # MAVLink 2 signing (icgt.mavlink.signing): every frame we send is signed with this 32-byte key and every
+    # received message says whether it carried a valid signature (msg.get_signed()). Never in a repr.
+    signing_key: bytes | None = dataclasses.field(default=None, repr=False)
+    signing_link_id: int = 0
 
     @property
     def effective_autopilot_system(self) -> int:
@@ -187,6 +191,10 @@ class LinkStats:
     undecoded_frames: int
     outages: int
     transport_errors: int
+    # with a signing key only: frames received with a valid signature, an invalid one, none
+    signed_ok: int = 0
+    signed_bad: int = 0
+    unsigned: int = 0
 
 
 class Subscription:

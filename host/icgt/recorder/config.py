@@ -17,8 +17,14 @@ Example (all keys optional; these are the defaults)::
     url = "udpin:0.0.0.0:14550"
     system_id = 1                  # the vehicle's system id (the camera component joins it)
     component_id = 100             # our camera's component id (101-106 if the vehicle has a camera at 100)
-    ground_station_systems = [255]
+    ground_station_systems = [255, 245]  # who may command the camera (the autopilot always may): system
+                                   # ids 255 = QGroundControl, Mission Planner, MAVProxy (their default
+                                   # --source-system), 245 = MAVSDK as a ground station. Others: COMMAND_ACK DENIED
     global_position_hz = 50.0
+    # signing_key_file = "/etc/icgt/mavlink.key"   # MAVLink 2 signing (off when absent): a file holding a
+                                   # passphrase; the key is its SHA-256, as QGroundControl and MAVProxy derive it.
+                                   # Our messages are signed; commands without a valid signature are ignored.
+                                   # The recording says whether signing was on, never the key.
 
     [capture]                      # what "start capture" from a ground station does
     mode = "interval"              # or "focus_burst" (the paper's cycle)
@@ -102,8 +108,9 @@ class MavlinkSection(_Section, frozen=True, kw_only=True):
     url: Annotated[str, Meta(min_length=1)] = "udpin:0.0.0.0:14550"
     system_id: _SystemId = 1
     component_id: _ComponentId = 100  # MAV_COMP_ID_CAMERA; 101-106 (CAMERA2..6) when 100 is taken
-    ground_station_systems: Annotated[tuple[_SystemId, ...], Meta(min_length=1)] = (255,)
+    ground_station_systems: Annotated[tuple[_SystemId, ...], Meta(min_length=1)] = (255, 245)
     global_position_hz: Annotated[float, Meta(gt=0.0, le=200.0)] = 50.0
+    signing_key_file: Path | None = None  # a passphrase file (icgt.mavlink.signing); None: no signing
 
 
 class CaptureSection(_Section, frozen=True, kw_only=True):

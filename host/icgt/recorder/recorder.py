@@ -25,8 +25,6 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from icgt import __version__
 from icgt.control import ControlServer, Reply, Request
 from icgt.device import (
@@ -38,11 +36,10 @@ from icgt.device import (
     TimeSyncSample,
 )
 from icgt.errors import IcgtError
-from icgt.geodesy import q_conjugate, q_multiply
 from icgt.geotag import FrameRecord
-from icgt.geotag.geotagger import _Q_CAM_TO_BODY_BASE
-from icgt.mavlink.camera import CameraComponent, CameraConfig, CameraInfo, CapturedImage, CommandResult
+from icgt.mavlink.camera import CameraComponent, CommandResult
 from icgt.mavlink.link import LinkConfig, MavlinkEvent, MavlinkLink, MavlinkMessage, StreamRate
+from icgt.mavlink.signing import load_signing_key
 from icgt.protocol import PROTOCOL_VERSION, TABLE_HASH
 from icgt.protocol import Received as DeviceReceived
 from icgt.protocol.messages import (
@@ -60,6 +57,7 @@ from icgt.protocol.messages import (
     StopCapture,
 )
 from icgt.recorder import topics
+from icgt.recorder.camera_link import CAMERA_IMAGES_SCHEMA, CameraImages, build_camera
 from icgt.recorder.config import RecorderConfig
 from icgt.recording import McapRecorder, RecordingError, layout
 from icgt.recording.writer import McapLogHandler
@@ -117,6 +115,9 @@ class Recorder:
         # MAVLink systems whose messages are logged field by field: the vehicle and its ground stations.
         self._expanded_systems = frozenset({config.mavlink.system_id, *config.mavlink.ground_station_systems})
         self._other_systems: list[dict[str, Any]] = []  # their raw frames, written once per inbox drain
+        key_file = config.mavlink.signing_key_file  # read now: a bad key file stops us before any contact
+        self._signing_key = load_signing_key(key_file) if key_file is not None else None
+        self._images = CameraImages(config.mavlink.system_id)
         # Filled by the reader threads (deque.append is atomic), emptied by the worker only.
         self._inbox: deque[tuple[int, Any, int]] = deque()
         self.mcap: McapRecorder | None = None
@@ -217,6 +218,10 @@ class Recorder:
         )
         self.mcap.add_metadata(layout.META_SYNC, {"json": json.dumps(self.sync_config.to_json())})
         self.mcap.add_metadata(
+            layout.META_MAVLINK_SIGNING,
+            {"enabled": "true" if self._signing_key is not None else "false", "key": "not recorded"},
+        )
+        self.mcap.add_metadata(
             layout.META_TIME_BASES,
             {
                 "log_time": "host CLOCK_MONOTONIC + a fixed offset to UTC taken at start [ns since the Unix epoch]",
@@ -305,6 +310,7 @@ class Recorder:
         self.mcap.register_json(layout.LINK_EVENTS, "icgt.link_event", layout.LINK_EVENT_SCHEMA)
         self.mcap.register_json(layout.COUNTERS, "icgt.counters", layout.COUNTERS_SCHEMA)
         self.mcap.register_json(layout.MAVLINK_OTHER_SYSTEMS, "icgt.mavlink_raw", layout.MAVLINK_RAW_SCHEMA)
+        self.mcap.register_json(layout.CAMERA_IMAGES, "icgt.camera_image", CAMERA_IMAGES_SCHEMA)
 
     def _log_time(self, host_ns: int) -> int:
         return host_ns + self._mono_to_utc_ns
@@ -493,44 +499,19 @@ class Recorder:
             StreamRate(2, "SYSTEM_TIME", 2.0),
         )
         self.mavlink = MavlinkLink(
-            LinkConfig(url=cfg.url, system_id=cfg.system_id, stream_rates=rates, decode_systems=self._expanded_systems),
+            LinkConfig(
+                url=cfg.url,
+                system_id=cfg.system_id,
+                stream_rates=rates,
+                decode_systems=self._expanded_systems,
+                signing_key=self._signing_key,
+            ),
             on_event=lambda event: self._inbox.append((_MAVLINK_EVENT, event, event.host_ns)),
             on_timesync_sent=lambda tx_ns: self._inbox.append((_TIMESYNC_SENT, tx_ns, tx_ns)),
         )
         self.mavlink.subscribe(lambda rec: self._inbox.append((_MAVLINK, rec, rec.rx_ns)))
         self.mavlink.start()
-        c = self.config.camera
-        info = CameraInfo(
-            focal_length_mm=c.focal_length_mm,
-            sensor_size_h_mm=c.sensor_width_mm,
-            sensor_size_v_mm=c.sensor_width_mm * c.image_height_px / c.image_width_px,
-            resolution_h=c.image_width_px,
-            resolution_v=c.image_height_px,
-        )
-        self.camera = CameraComponent(
-            self.mavlink,
-            CameraConfig(
-                output_dir=self.config.output.dir,
-                info=info,
-                ground_station_systems=frozenset(cfg.ground_station_systems),
-            ),
-            _CaptureHandler(self),
-            on_rejected=lambda r: log.warning(
-                "ignored command %d from system %d component %d: %s",
-                r.command,
-                r.src_system,
-                r.src_component,
-                r.reason,
-            ),
-            on_command=lambda r: log.info(
-                "ground station command %d from %d/%d -> result %s%s",
-                r.command,
-                r.src_system,
-                r.src_component,
-                r.result,
-                " (duplicate)" if r.duplicate else "",
-            ),
-        )
+        self.camera = build_camera(self.config, self.mavlink, _CaptureHandler(self))  # it logs what it refuses
         self.camera.start()
 
     def _on_mavlink_message(self, rec: MavlinkMessage) -> None:
@@ -555,6 +536,7 @@ class Recorder:
             self._registered.add(topic)
         self._write(topic, topics.mavlink_payload(rec.msg, rec.rx_ns), rec.rx_ns)
         self.sync.on_mavlink(rec.msg, rec.rx_ns)
+        self._images.on_mavlink(rec.msg, rec.src_system, rec.rx_ns)
 
     def _flush_other_systems(self) -> None:
         batch, self._other_systems = self._other_systems, []
@@ -585,24 +567,7 @@ class Recorder:
             self._write(topics.FRAMES_POSE, pose[0], rec.mid_host_ns)
             self._write(topics.TF, pose[1], rec.mid_host_ns)
         if self.camera is not None:
-            q = None
-            if rec.cam_qw is not None:
-                # MAVLink's camera quaternion is the camera body (x forward) in NED: undo the optical base.
-                cq = np.array([rec.cam_qw, rec.cam_qx, rec.cam_qy, rec.cam_qz], dtype=float)
-                q = tuple(float(v) for v in q_multiply(cq, q_conjugate(_Q_CAM_TO_BODY_BASE)))
-            image = CapturedImage(
-                image_index=rec.image_index,
-                time_boot_ms=self.camera.time_boot_ms(rec.mid_host_ns),
-                time_utc_us=rec.mid_utc_us or 0,
-                lat_deg=rec.lat_deg,
-                lon_deg=rec.lon_deg,
-                alt_msl_m=rec.alt_msl_m,
-                relative_alt_m=rec.up_m,
-                q_wxyz=q,  # type: ignore[arg-type]
-                capture_result="feedback_missing" not in rec.flags,
-            )
-            with contextlib.suppress(IcgtError):
-                self.camera.publish_image_captured(image)
+            self._write(layout.CAMERA_IMAGES, self._images.publish(self.camera, rec), rec.mid_host_ns)
 
     # ------------------------------------------------------------------ worker
     def _work(self) -> None:
@@ -669,6 +634,8 @@ class Recorder:
             stats = asdict(self.mavlink.stats())
             stats.pop("messages_by_type", None)
             record["mavlink"] = stats
+        if self.camera is not None:
+            record["camera"] = self.camera.counters
         self._write(layout.COUNTERS, record, now)
 
     def _record_link_summary(self) -> None:

@@ -20,11 +20,15 @@ be recomputed later; derived ones (frames, clock estimates) say how they were ma
 * ``/clock/device``, ``/clock/autopilot``, ``/clock/utc`` (JSON): the clock estimates once a second;
 * ``/icgt/link_events`` (JSON): link state changes, sequence gaps, rejected frames, synchroniser notices;
 * ``/icgt/log`` (Foxglove Log): the recorder's own log;
-* ``/icgt/counters`` (JSON): link and synchroniser counters once a second.
+* ``/icgt/counters`` (JSON): link, camera and synchroniser counters once a second;
+* ``/camera/images`` (JSON): every CAMERA_IMAGE_CAPTURED published: its MAVLink image index, the frame
+  (``frame_seq``) and device trigger number it belongs to, capture_result and why
+  (`icgt.recorder.camera_link`).
 
 Metadata records: ``icgt.config`` (the effective configuration), ``icgt.sync`` (the synchroniser's
 settings as JSON: `icgt.sync.SyncConfig`), ``icgt.calibration`` (camera and mounting, for people),
-``icgt.device``, ``icgt.time_bases``, ``icgt.enu_origin``, ``icgt.device_link``.
+``icgt.device``, ``icgt.time_bases``, ``icgt.enu_origin``, ``icgt.device_link``, ``icgt.mavlink_signing``
+(whether MAVLink 2 signing was on; never the key).
 """
 
 from __future__ import annotations
@@ -48,6 +52,7 @@ CLOCK_UTC = "/clock/utc"
 DEVICE_PREFIX = "/device/"
 MAVLINK_PREFIX = "/mavlink/"
 MAVLINK_OTHER_SYSTEMS = "/mavlink/other_systems"
+CAMERA_IMAGES = "/camera/images"
 WORLD_FRAME = "enu"
 CAMERA_FRAME = "camera"
 
@@ -58,6 +63,7 @@ META_DEVICE = "icgt.device"
 META_TIME_BASES = "icgt.time_bases"
 META_ENU_ORIGIN = "icgt.enu_origin"
 META_DEVICE_LINK = "icgt.device_link"
+META_MAVLINK_SIGNING = "icgt.mavlink_signing"
 
 
 def device_topic(name: str) -> str:
@@ -161,6 +167,7 @@ COUNTERS_SCHEMA: dict[str, Any] = {
         "host_ns": _INT,
         "device": {"type": "object"},
         "mavlink": {"type": "object"},
+        "camera": {"type": "object", "description": "refused commands by kind and images published"},
         "sync": {"type": "object"},
     },
 }

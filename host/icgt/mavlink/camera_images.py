@@ -1,0 +1,176 @@
+"""The camera's images as MAVLink publishes them: indices, the poor-pose policy, history and re-requests.
+
+Indices (Camera Protocol v2): every image the recorder logs gets the next index, from 0, whatever caused
+it (a ground-station command, the control socket, an interval, a manual shot on the camera seen by the
+hot-shoe line): image N's CAMERA_IMAGE_CAPTURED.image_index is N and CAMERA_CAPTURE_STATUS.image_count is
+the number of images so far, so the newest image is image_count - 1. The device numbers its triggers
+itself (FrameRecord.image_index, 0 for an unsolicited exposure); the log's ``/camera/images`` topic maps
+each MAVLink index to its frame (``frame_seq``) and the device's trigger number.
+
+Poor poses: the synchroniser already holds a frame until its pose can be interpolated (the next position
+sample came) or its bounded wait ran out; whatever flags the frame then carries are final. A frame whose
+pose is not trustworthy (`POOR_POSE_FLAGS`: no fix, stale or extrapolated pose, no attitude) or whose
+exposure the camera did not confirm (feedback_missing) is published with ``capture_result`` 0 and, for a
+poor pose, lat = lon = alt = relative_alt = 0 and the quaternion NaN: fields no ground station can take
+for a good fix. ``/camera/images`` says for each image which rule applied, so the log and the ground
+station agree on which images are good; `icgt map` uses the same flags to leave such images out.
+
+History: every image of the recording is kept (about 200 bytes each: an hour at 20 fps is ~15 MB) and can
+be re-requested with MAV_CMD_REQUEST_MESSAGE(CAMERA_IMAGE_CAPTURED): param2 the first index (-1: all
+images), param3 0 for that image only, -1 for it and every later one, or the last index of a range.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import threading
+from typing import Any
+
+from icgt.errors import IcgtError
+from icgt.geotag.record import FrameFlag
+
+__all__ = [
+    "POOR_POSE_FLAGS",
+    "CameraError",
+    "CapturedImage",
+    "ImageHistory",
+    "encode_image_captured",
+    "image_range",
+    "pose_verdict",
+]
+
+
+class CameraError(IcgtError):
+    """A camera message cannot be built from the values given (e.g. a latitude out of range)."""
+
+
+POOR_POSE_FLAGS = (FrameFlag.NO_FIX, FrameFlag.STALE_POSE, FrameFlag.POSE_EXTRAPOLATED, FrameFlag.NO_ATTITUDE)
+"""Flags that make a frame's pose untrustworthy: published with capture_result 0 and no position."""
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class CapturedImage:
+    """One exposure for CAMERA_IMAGE_CAPTURED, in SI units (the component converts to MAVLink's).
+
+    ``image_index``: assigned by `CameraComponent.publish_image_captured` (-1 until then). ``time_boot_ms``:
+    the component's boot clock (`CameraComponent.time_boot_ms`). ``time_utc_us``: 0 when unknown.
+    ``relative_alt_m``: height above home. A position or attitude that is None is sent as 0 (lat, lon,
+    alt, relative_alt) and NaN (q)."""
+
+    time_boot_ms: int
+    time_utc_us: int
+    lat_deg: float | None
+    lon_deg: float | None
+    alt_msl_m: float | None
+    relative_alt_m: float | None
+    q_wxyz: tuple[float, float, float, float] | None
+    capture_result: bool = True
+    file_url: str = ""
+    camera_id: int = 0
+    image_index: int = -1
+
+
+def pose_verdict(flags: list[str]) -> tuple[bool, bool, str]:
+    """(capture_result, position published, reason) for a frame's flags, per the policy above."""
+    poor = [f.value for f in POOR_POSE_FLAGS if f.value in flags]
+    unconfirmed = FrameFlag.FEEDBACK_MISSING.value in flags
+    reasons = []
+    if poor:
+        reasons.append("poor pose (" + ", ".join(poor) + "): no position published")
+    if unconfirmed:
+        reasons.append("the camera did not confirm the exposure (feedback_missing)")
+    return (not poor and not unconfirmed), not poor, "; ".join(reasons) or "good"
+
+
+def _scaled(value: float | None, scale: float, limit: int, what: str) -> int:
+    if value is None:
+        return 0
+    if not math.isfinite(value):
+        raise CameraError(f"{what} is not finite: {value}")
+    out = round(value * scale)
+    if abs(out) > limit:
+        raise CameraError(f"{what} out of range: {value}")
+    return out
+
+
+def _truncate_utf8(text: str, size: int) -> bytes:
+    return text.encode("utf-8")[:size].decode("utf-8", errors="ignore").encode("utf-8")
+
+
+def check_image(image: CapturedImage) -> None:
+    """Raise CameraError for a value CAMERA_IMAGE_CAPTURED cannot carry."""
+    _scaled(image.lat_deg, 1e7, 900_000_000, "latitude")
+    _scaled(image.lon_deg, 1e7, 1_800_000_000, "longitude")
+    _scaled(image.alt_msl_m, 1e3, 2**31 - 1, "altitude")
+    _scaled(image.relative_alt_m, 1e3, 2**31 - 1, "relative altitude")
+    if image.q_wxyz is not None and len(image.q_wxyz) != 4:
+        raise CameraError("q_wxyz needs 4 components")
+    if not 0 <= image.image_index < 2**31 and image.image_index != -1:
+        raise CameraError(f"image index out of range: {image.image_index}")
+
+
+def encode_image_captured(mav: Any, image: CapturedImage) -> Any:
+    """The CAMERA_IMAGE_CAPTURED message of ``image`` (pymavlink ``mav`` packs it)."""
+    check_image(image)
+    q = [math.nan] * 4 if image.q_wxyz is None else [float(c) for c in image.q_wxyz]
+    return mav.camera_image_captured_encode(
+        image.time_boot_ms & 0xFFFFFFFF,
+        max(0, image.time_utc_us),
+        image.camera_id & 0xFF,
+        _scaled(image.lat_deg, 1e7, 900_000_000, "latitude"),
+        _scaled(image.lon_deg, 1e7, 1_800_000_000, "longitude"),
+        _scaled(image.alt_msl_m, 1e3, 2**31 - 1, "altitude"),
+        _scaled(image.relative_alt_m, 1e3, 2**31 - 1, "relative altitude"),
+        q,
+        image.image_index,
+        1 if image.capture_result else 0,
+        _truncate_utf8(image.file_url, 205),
+    )
+
+
+def image_range(first: float, last: float, count: int) -> tuple[range, str]:
+    """The indices a CAMERA_IMAGE_CAPTURED request asks for (REQUEST_MESSAGE param2, param3) among
+    ``count`` images, and why it is empty when it is."""
+    if not math.isfinite(first) or first != int(first) or first < -1:
+        return range(0), f"param2 {first}: an image index or -1 (all) is needed"
+    if not math.isfinite(last) or last != int(last) or last < -1:
+        return range(0), f"param3 {last}: 0 (one image), -1 (all later ones) or the last index is needed"
+    if count == 0:
+        return range(0), "no images yet"
+    a = int(first)
+    if a == -1:
+        return range(count), ""
+    b = int(last)
+    if b == 0:
+        b = a
+    elif b == -1:
+        b = count - 1
+    if b < a:
+        return range(0), f"range {a}..{b} is empty"
+    if a >= count:
+        return range(0), f"image {a} not taken yet ({count} images, indices 0..{count - 1})"
+    return range(a, min(b, count - 1) + 1), ""
+
+
+class ImageHistory:
+    """Every image published in this recording, by index. Thread-safe."""
+
+    def __init__(self) -> None:
+        self._images: list[CapturedImage] = []
+        self._lock = threading.Lock()
+
+    def append(self, image: CapturedImage) -> CapturedImage:
+        """Give ``image`` the next index, keep it and return it with its index."""
+        with self._lock:
+            indexed = dataclasses.replace(image, image_index=len(self._images))
+            self._images.append(indexed)
+            return indexed
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._images)
+
+    def get(self, index: int) -> CapturedImage | None:
+        with self._lock:
+            return self._images[index] if 0 <= index < len(self._images) else None

@@ -1,0 +1,119 @@
+"""The recorder's side of the MAVLink camera: building the component, and turning frames into images.
+
+`CameraImages` gets every GLOBAL_POSITION_INT of the vehicle (for home's altitude, `icgt.mavlink.home`)
+and every frame the synchroniser emits, on the recorder's worker thread. For each frame it builds the
+CAMERA_IMAGE_CAPTURED contents under the poor-pose policy (`icgt.mavlink.camera_images`), publishes it
+(the camera gives it the next image index) and returns the record for the log's ``/camera/images``
+topic: the MAVLink index next to the frame's ``frame_seq`` and the device's trigger number, what was
+published and why. A frame that cannot be published (a value MAVLink cannot carry) gets no index and a
+record saying so.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from icgt.errors import IcgtError
+from icgt.geodesy import q_conjugate, q_multiply
+from icgt.geotag import FrameRecord
+from icgt.geotag.geotagger import _Q_CAM_TO_BODY_BASE
+from icgt.mavlink.camera import CameraComponent, CameraConfig, CameraInfo, CaptureHandler
+from icgt.mavlink.camera_images import CapturedImage, pose_verdict
+from icgt.mavlink.home import HomeAltitude
+from icgt.mavlink.link import MavlinkLink
+from icgt.recorder.config import RecorderConfig
+
+__all__ = ["CAMERA_IMAGES_SCHEMA", "CameraImages", "build_camera"]
+
+CAMERA_IMAGES_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "description": "one CAMERA_IMAGE_CAPTURED as the ground station got it, and the frame it came from",
+    "properties": {
+        "image_index": {"type": "integer", "description": "MAVLink image index (-1: not published)"},
+        "frame_seq": {"type": "integer", "description": "the frame's frame_seq in /frames"},
+        "device_image_index": {"type": "integer", "description": "the device's trigger number (0: unsolicited)"},
+        "capture_result": {"type": "boolean", "description": "CAMERA_IMAGE_CAPTURED.capture_result"},
+        "position_published": {"type": "boolean", "description": "false: lat/lon/alt/relative_alt sent as 0"},
+        "relative_alt_m": {"type": ["number", "null"], "description": "height above home sent [m]"},
+        "reason": {"type": "string", "description": "why capture_result / the position are what they are"},
+        "host_ns": {"type": "integer", "description": "host CLOCK_MONOTONIC of mid-exposure [ns]"},
+    },
+}
+
+
+def build_camera(config: RecorderConfig, link: MavlinkLink, handler: CaptureHandler) -> CameraComponent:
+    """The camera component the recorder runs on ``link`` (which carries the signing key if one is set)."""
+    c = config.camera
+    info = CameraInfo(
+        focal_length_mm=c.focal_length_mm,
+        sensor_size_h_mm=c.sensor_width_mm,
+        sensor_size_v_mm=c.sensor_width_mm * c.image_height_px / c.image_width_px,
+        resolution_h=c.image_width_px,
+        resolution_v=c.image_height_px,
+    )
+    return CameraComponent(
+        link,
+        CameraConfig(
+            output_dir=config.output.dir,
+            info=info,
+            ground_station_systems=frozenset(config.mavlink.ground_station_systems),
+            require_signing=link.signing is not None,
+        ),
+        handler,
+    )
+
+
+class CameraImages:
+    """Frames -> CAMERA_IMAGE_CAPTURED, with height above home. Worker thread only."""
+
+    def __init__(self, vehicle_system: int) -> None:
+        self._vehicle = vehicle_system
+        self.home = HomeAltitude()
+
+    def on_mavlink(self, msg: Any, src_system: int, rx_ns: int) -> None:
+        if src_system == self._vehicle and msg.get_type() == "GLOBAL_POSITION_INT":
+            self.home.on_global_position(msg, rx_ns)
+
+    def image(self, rec: FrameRecord, time_boot_ms: int) -> tuple[CapturedImage, str, bool]:
+        """(what to publish, the policy's reason, whether the position is published) for one frame."""
+        capture_result, position_ok, reason = pose_verdict(rec.flags)
+        q = None
+        if rec.cam_qw is not None and position_ok:
+            # MAVLink's camera quaternion is the camera body (x forward) in NED: undo the optical base.
+            cq = np.array([rec.cam_qw, rec.cam_qx, rec.cam_qy, rec.cam_qz], dtype=float)
+            q4 = [float(v) for v in q_multiply(cq, q_conjugate(_Q_CAM_TO_BODY_BASE))]
+            q = (q4[0], q4[1], q4[2], q4[3])
+        rel = self.home.relative_alt_m(rec.alt_msl_m, rec.mid_host_ns) if position_ok else None
+        image = CapturedImage(
+            time_boot_ms=time_boot_ms,
+            time_utc_us=rec.mid_utc_us or 0,
+            lat_deg=rec.lat_deg if position_ok else None,
+            lon_deg=rec.lon_deg if position_ok else None,
+            alt_msl_m=rec.alt_msl_m if position_ok else None,
+            relative_alt_m=rel,
+            q_wxyz=q,
+            capture_result=capture_result,
+            camera_id=rec.camera_id,
+        )
+        return image, reason, position_ok
+
+    def publish(self, camera: CameraComponent, rec: FrameRecord) -> dict[str, Any]:
+        """Publish one frame's image; the /camera/images record of it."""
+        image, reason, position_ok = self.image(rec, camera.time_boot_ms(rec.mid_host_ns))
+        index = -1
+        try:
+            index = camera.publish_image_captured(image).image_index
+        except IcgtError as exc:
+            reason = f"not published: {exc}"
+        return {
+            "image_index": index,
+            "frame_seq": rec.frame_seq,
+            "device_image_index": rec.image_index,
+            "capture_result": image.capture_result,
+            "position_published": position_ok,
+            "relative_alt_m": image.relative_alt_m,
+            "reason": reason,
+            "host_ns": rec.mid_host_ns,
+        }

@@ -44,7 +44,7 @@ if TYPE_CHECKING:  # the heavy modules load when a command runs, not when the pa
 
 log = logging.getLogger(__name__)
 
-FORMATS = ("csv", "gpkg", "geojson", "kml", "odm", "opensfm", "jpeg", "ros2", "ppk")
+FORMATS = ("csv", "gpkg", "geojson", "kml", "odm", "opensfm", "jpeg", "ros2", "ppk", "mcap")
 DEFAULT_FORMATS = ("csv", "gpkg", "geojson", "kml", "odm", "opensfm", "jpeg")
 CSV_FILE = "frames.csv"
 PROBLEMS_FILE = "problems.csv"
@@ -296,7 +296,7 @@ def run_export(
     total = recording.topics().get(layout.FRAMES)
     frames = list(tqdm(recording.frames(), desc="frames", unit="frame", total=total, disable=not progress))
     ros2_only = set(formats) <= {"ros2"}  # the bag needs neither frames nor a camera model
-    camera_free = set(formats) <= {"ros2", "ppk"}  # nor do the PPK event files need a camera model
+    camera_free = set(formats) <= {"ros2", "ppk", "mcap"}  # nor do the PPK events and the enriched log
     if not frames and not ros2_only:
         raise ExportError(f"{log_path}: the recording has no frames (/frames is empty)")
     metadata = recording.metadata
@@ -338,6 +338,15 @@ def run_export(
 
         bag = write_ros2_bag(recording, out_dir)
         written["ros2 messages"] = bag.total
+    if "mcap" in wanted:
+        from icgt.export.foxglove_mcap import paired_images, write_foxglove_mcap
+        from icgt.ingest.recompute import recording_config
+
+        if images is None:
+            log.warning("mcap export without --images: the enriched log has no camera images")
+        fox = write_foxglove_mcap(log_path, out_dir, paired_images(pairs), recording_config(recording))
+        written["foxglove.mcap messages"] = fox["copied"]
+        written["foxglove.mcap images"] = fox["images"]
     if "ppk" in wanted:
         from icgt.trajectories.cli import export_ppk
 

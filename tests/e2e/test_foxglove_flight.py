@@ -44,6 +44,7 @@ from icgt.recording import layout
 from icgt.sim.scenario import load_scenario
 
 SCENARIO = Path(__file__).resolve().parents[1] / "export" / "export_flight.toml"
+MIN_FRAMES = 10  # 45 at 5 fps for 9 s; fewer when a loaded machine starts the capture late
 SUBSCRIBED = (
     layout.FRAMES_LOCATION,
     layout.VEHICLE_LOCATION,
@@ -65,7 +66,7 @@ class LiveClient:
     port: int
     received: list[tuple[str, int, int, bytes]] = field(default_factory=list)  # topic, log ns, monotonic rx, data
     advertised: dict[str, dict[str, Any]] = field(default_factory=dict)
-    subscribed_at_ns: int | None = None
+    subscribed_at_ns: dict[str, int] = field(default_factory=dict)  # topic -> CLOCK_MONOTONIC of our subscribe
     error: str | None = None
     stop: threading.Event = field(default_factory=threading.Event)
 
@@ -107,9 +108,9 @@ class LiveClient:
                                 topics[len(topics) + 1] = ch["topic"]
                                 subs.append({"id": len(topics), "channelId": ch["id"]})
                         if subs:
-                            if self.subscribed_at_ns is None:
-                                self.subscribed_at_ns = time.monotonic_ns()
                             await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+                            for sub in subs:
+                                self.subscribed_at_ns[topics[sub["id"]]] = time.monotonic_ns()
                 elif raw[0] == 1:  # MessageData
                     sub_id, log_ns = struct.unpack_from("<IQ", raw, 1)
                     self.received.append((topics[sub_id], log_ns, rx, bytes(raw[13:])))
@@ -161,41 +162,23 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Run:
     return Run(flight, client, out, code)
 
 
-def _data_section(
-    path: Path,
-) -> tuple[list[tuple[str, int, int]], list[tuple[int, int]]]:
-    """(topic, log time, publish time) of every message in file order, and each chunk's (start, end) log time."""
+def _data_section(path: Path) -> tuple[list[tuple[str, int, int]], list[tuple[int, int]]]:
+    """(topic, log time, publish time) of every message in file order, and each chunk record's (start, end)."""
     messages: list[tuple[str, int, int]] = []
-    chunks: list[tuple[int, int]] = []
     channels: dict[int, str] = {}
     with path.open("rb") as f:
-        for record in StreamReader(f, emit_chunks=True).records:
-            if isinstance(record, Chunk):
-                chunks.append((record.message_start_time, record.message_end_time))
-                for inner in StreamReader(io.BytesIO(record.data if not record.compression else _unzip(record)),
-                                          skip_magic=True).records:  # fmt: skip
-                    if isinstance(inner, Channel):
-                        channels[inner.id] = inner.topic
-                    elif isinstance(inner, Message):
-                        messages.append(
-                            (
-                                channels[inner.channel_id],
-                                inner.log_time,
-                                inner.publish_time,
-                            )
-                        )
-            elif isinstance(record, Channel):
+        for record in StreamReader(f).records:  # chunks opened, CRCs checked
+            if isinstance(record, Channel):
                 channels[record.id] = record.topic
             elif isinstance(record, Message):
                 messages.append((channels[record.channel_id], record.log_time, record.publish_time))
+    with path.open("rb") as f:
+        chunks = [
+            (r.message_start_time, r.message_end_time)
+            for r in StreamReader(f, emit_chunks=True).records
+            if isinstance(r, Chunk)
+        ]
     return messages, chunks
-
-
-def _unzip(chunk: Chunk) -> bytes:
-    import zstandard
-
-    assert chunk.compression == "zstd", chunk.compression
-    return zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=chunk.uncompressed_size)
 
 
 def assert_strict_log_time_order(path: Path) -> dict[str, int]:
@@ -241,10 +224,11 @@ def test_the_live_view_delivers_each_frames_location_within_a_second(run: Run) -
     offset = read(run.flight.mcap).monotonic_to_utc_offset_ns
     assert offset is not None
     recorded = _decoded(run.flight.mcap, layout.FRAMES_LOCATION, LocationFix)
-    assert len(recorded) >= 30
-    assert client.subscribed_at_ns is not None
-    due = [r for r in recorded if r[0] - offset > client.subscribed_at_ns]  # written after we subscribed
-    assert len(due) >= 30, "the client subscribed late: capture had already run"
+    assert len(recorded) >= MIN_FRAMES
+    # the recorder declares its topics when the log opens, before any frame: we subscribed before the first
+    subscribed = client.subscribed_at_ns[layout.FRAMES_LOCATION]
+    due = [r for r in recorded if r[0] - offset > subscribed]
+    assert len(due) == len(recorded), "the client subscribed late: capture had already run"
     live = {log_ns: (rx, data) for topic, log_ns, rx, data in client.received if topic == layout.FRAMES_LOCATION}
     latencies = []
     for log_ns, _, fix in due:
@@ -270,7 +254,7 @@ def test_the_live_view_sends_the_latched_mount_and_calibration_to_a_client_that_
 
 def test_the_recording_is_in_log_time_order(run: Run) -> None:
     counts = assert_strict_log_time_order(run.flight.mcap)
-    assert counts[layout.FRAMES] >= 30
+    assert counts[layout.FRAMES] >= MIN_FRAMES
 
 
 def test_the_vehicle_track_and_base_link_are_at_telemetry_rate(run: Run) -> None:
@@ -290,9 +274,17 @@ def test_the_vehicle_track_and_base_link_are_at_telemetry_rate(run: Run) -> None
     attitude = topics[layout.mavlink_topic("ATTITUDE_QUATERNION")]
     assert attitude - 60 <= len(telemetry) <= attitude  # all but those before the first position
     assert {m[2].transforms[0].child_frame_id for m in telemetry} == {layout.BASE_FRAME}
-    # the drone hovers 3 m from the face at 6 m: base_link is there in the ENU frame
-    z = [m[2].transforms[0].translation.z for m in telemetry]
-    assert 4.0 < float(np.median(z)) < 8.0
+    # base_link is where the last GLOBAL_POSITION_INT put the vehicle in the recording's ENU frame
+    from icgt.geodesy import LocalFrame
+
+    assert rec.enu_origin is not None
+    local = LocalFrame(*rec.enu_origin)
+    positions = {
+        tuple(np.round(local.geodetic_to_enu(d["lat"] / 1e7, d["lon"] / 1e7, d["alt"] / 1000.0), 6)) for _, d in gpi
+    }
+    for m in telemetry:
+        t = m[2].transforms[0].translation
+        assert tuple(np.round([t.x, t.y, t.z], 6)) in positions
 
 
 def test_the_frames_transforms_end_at_the_geotagged_camera(run: Run) -> None:
@@ -325,7 +317,7 @@ def test_the_frames_transforms_end_at_the_geotagged_camera(run: Run) -> None:
         t = np.array([base.translation.x, base.translation.y, base.translation.z]) + q_rotate(q, lever)
         assert t == pytest.approx([rec.east_m, rec.north_m, rec.up_m], abs=1e-9)
         checked += 1
-    assert checked >= 30
+    assert checked >= MIN_FRAMES
 
 
 def test_the_calibration_and_the_device_log(run: Run) -> None:
@@ -350,9 +342,10 @@ def test_readers_keep_working_on_the_new_channels(run: Run) -> None:
 
     path = run.flight.mcap
     n = assert_replay_reproduces_every_frame(path)
-    assert n >= 30
+    assert n >= MIN_FRAMES
     data = gather(read(path))
-    assert len(data.track) > 300  # the report's track still comes from the telemetry
+    assert len(data.track_t_s) > 300  # the report's track still comes from the telemetry
+    assert np.all(np.diff(data.track_t_s) >= 0) and 10.0 < data.duration_s < 60.0
 
 
 # --- the exports --------------------------------------------------------------------------------------
@@ -375,7 +368,7 @@ def test_the_export_puts_every_image_on_the_timeline(run: Run) -> None:
     assert {t: counts[t] for t in source} == source  # every recorded message is there
     images = _decoded(out, layout.CAMERA_IMAGE, CompressedImage)
     card = sorted(run.flight.card.glob("*.JPG"))
-    assert len(images) == len(card) >= 30  # each card image paired with its frame
+    assert len(images) == len(card) >= MIN_FRAMES  # each card image paired with its frame
     frames = {m[0]: m[1] for m in _frame_times(run.flight.mcap)}
     cals = {m[0]: m[2] for m in _decoded(out, CALIBRATION_TOPIC, CameraCalibration)}
     for log_ns, publish, img in images:
@@ -399,7 +392,7 @@ def test_the_ros2_bag_is_in_log_time_order(run: Run) -> None:
     bags = sorted((run.export / "ros2").glob("*.mcap"))
     assert len(bags) == 1
     counts = assert_strict_log_time_order(bags[0])
-    assert counts["/frames"] >= 30 and counts["/tf_static"] == 1
+    assert counts["/frames"] >= MIN_FRAMES and counts["/tf_static"] == 1
 
 
 def test_the_shipped_layout_names_only_topics_the_logs_have(run: Run) -> None:

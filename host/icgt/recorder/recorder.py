@@ -59,7 +59,7 @@ from icgt.protocol.messages import (
     Status,
     StopCapture,
 )
-from icgt.recorder import topics
+from icgt.recorder import topics, views
 from icgt.recorder.config import RecorderConfig
 from icgt.recorder.views import FoxgloveViews
 from icgt.recording import McapRecorder, RecordingError, layout
@@ -326,6 +326,8 @@ class Recorder:
         for topic, cls in layout.DEVICE_TOPIC_TYPES.items():
             self.mcap.register_json(topic, f"icgt.device.{cls.NAME}", topics.device_schema(cls))
         self.mcap.register_dataclass(topics.FRAMES, FrameRecord)
+        for name, kind in views.TOPICS.items():
+            self.mcap.register_protobuf(name, kind)
         for name in (layout.CLOCK_DEVICE, layout.CLOCK_AUTOPILOT):
             self.mcap.register_json(name, "icgt.clock.estimate", layout.ESTIMATE_SCHEMA)
         self.mcap.register_json(layout.CLOCK_DEVICE_EXCHANGES, "icgt.clock.exchange", layout.EXCHANGE_SCHEMA)

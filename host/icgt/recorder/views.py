@@ -94,6 +94,19 @@ def _finite(*values: float | None) -> bool:
     return all(v is not None and math.isfinite(v) for v in values)
 
 
+TOPICS: dict[str, type] = {
+    layout.VEHICLE_LOCATION: LocationFix,
+    layout.TF: FrameTransforms,
+    layout.TF_STATIC: FrameTransforms,
+    layout.CAMERA_CALIBRATION: CameraCalibration,
+    layout.FRAMES_LOCATION: LocationFix,
+    layout.FRAMES_POSE: PoseInFrame,
+    layout.DEVICE_LOG_VIEW: FoxgloveLog,
+}
+"""Every topic the views write and its message type (declared when the log opens, so that a live client
+can subscribe before the first message)."""
+
+
 class FoxgloveViews:
     """Derives the Foxglove topics from the recorder's inputs; single-threaded (the recorder's worker).
 

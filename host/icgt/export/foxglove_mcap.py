@@ -155,7 +155,7 @@ def write_foxglove_mcap(
                     attachment.create_time, attachment.log_time, attachment.name, attachment.media_type,
                     attachment.data,
                 )  # fmt: skip
-            writer.finish()
+            writer.finish()  # type: ignore[no-untyped-call]  # mcap's Writer.finish is unannotated
     except OSError as exc:
         raise FoxgloveExportError(f"cannot write {out}: {exc.strerror or exc}") from None
     except (ValueError, KeyError) as exc:  # the mcap reader's errors for a damaged file

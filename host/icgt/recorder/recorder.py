@@ -217,7 +217,7 @@ class Recorder:
 
     def _open_log(self, path: Path) -> None:
         cfg = self.config
-        sinks = ()
+        sinks: tuple[Any, ...] = ()
         if self._live[0] is not None:
             from icgt.recording.live import LiveView
 

@@ -47,7 +47,7 @@ class LiveView:
         self.dropped = 0
         view = self
 
-        class _Listener(foxglove.ServerListener):  # type: ignore[misc]
+        class _Listener(foxglove.ServerListener):  # type: ignore[misc,name-defined]
             def on_subscribe(self, client: Any, channel: Any) -> None:
                 view._replay_latched(channel.topic)
 

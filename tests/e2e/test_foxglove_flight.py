@@ -43,8 +43,8 @@ from icgt.ingest import read
 from icgt.recording import layout
 from icgt.sim.scenario import load_scenario
 
-SCENARIO = Path(__file__).resolve().parents[1] / "export" / "export_flight.toml"
-MIN_FRAMES = 10  # 45 at 5 fps for 9 s; fewer when a loaded machine starts the capture late
+SCENARIO = Path(__file__).with_name("foxglove_flight.toml")
+MIN_FRAMES = 30  # 40 at 5 fps for 8 s
 SUBSCRIBED = (
     layout.FRAMES_LOCATION,
     layout.VEHICLE_LOCATION,
@@ -236,6 +236,8 @@ def test_the_live_view_delivers_each_frames_location_within_a_second(run: Run) -
         rx, data = live[log_ns]
         assert LocationFix.FromString(data) == fix  # the same message as in the file
         latencies.append((rx + offset - log_ns) / 1e9)
+    print(f"live view: {len(latencies)} frame LocationFix, latency median {np.median(latencies) * 1e3:.1f} ms, "
+          f"max {max(latencies) * 1e3:.1f} ms")  # fmt: skip
     assert max(latencies) < 1.0, f"live latency up to {max(latencies):.3f} s"
     assert min(latencies) >= 0.0  # received after it was written: the clocks are the same one
 
@@ -263,7 +265,7 @@ def test_the_vehicle_track_and_base_link_are_at_telemetry_rate(run: Run) -> None
     topics = rec.topics()
     gpi = [(t, d) for t, d in rec.messages(layout.mavlink_topic("GLOBAL_POSITION_INT")) if d["lat"] or d["lon"]]
     track = _decoded(path, layout.VEHICLE_LOCATION, LocationFix)
-    assert len(gpi) > 300 and len(track) == len(gpi)
+    assert len(gpi) > 200 and len(track) == len(gpi)  # 50 Hz
     for (_, publish, fix), (t, d) in zip(track, gpi, strict=True):
         assert publish == t and fix.timestamp.ToNanoseconds() == t
         assert fix.latitude == d["lat"] / 1e7 and fix.altitude == d["alt"] / 1000.0
@@ -271,20 +273,23 @@ def test_the_vehicle_track_and_base_link_are_at_telemetry_rate(run: Run) -> None
     assert track[-1][2].position_covariance_type == LocationFix.DIAGONAL_KNOWN
     tf = _decoded(path, layout.TF, FrameTransforms)
     telemetry = [m for m in tf if len(m[2].transforms) == 1]
-    attitude = topics[layout.mavlink_topic("ATTITUDE_QUATERNION")]
-    assert attitude - 60 <= len(telemetry) <= attitude  # all but those before the first position
+    # from the moment the ENU origin is fixed (the geotagger's: at the first frame), every attitude sample
+    first_frame = next(rec.messages(layout.FRAMES))[0]
+    attitude = [t for t, _ in rec.messages(layout.mavlink_topic("ATTITUDE_QUATERNION"))]
+    assert len(attitude) == topics[layout.mavlink_topic("ATTITUDE_QUATERNION")]
+    after = [t for t in attitude if t > first_frame + 500_000_000]  # the frame is logged up to ~0.5 s later
+    assert len(after) >= 200  # 50 Hz
+    assert set(after) <= {m[1] for m in telemetry} <= set(attitude)  # stamped with their receipt
     assert {m[2].transforms[0].child_frame_id for m in telemetry} == {layout.BASE_FRAME}
     # base_link is where the last GLOBAL_POSITION_INT put the vehicle in the recording's ENU frame
     from icgt.geodesy import LocalFrame
 
     assert rec.enu_origin is not None
     local = LocalFrame(*rec.enu_origin)
-    positions = {
-        tuple(np.round(local.geodetic_to_enu(d["lat"] / 1e7, d["lon"] / 1e7, d["alt"] / 1000.0), 6)) for _, d in gpi
-    }
+    positions = np.array([local.geodetic_to_enu(d["lat"] / 1e7, d["lon"] / 1e7, d["alt"] / 1000.0) for _, d in gpi])
     for m in telemetry:
         t = m[2].transforms[0].translation
-        assert tuple(np.round([t.x, t.y, t.z], 6)) in positions
+        assert float(np.min(np.linalg.norm(positions - [t.x, t.y, t.z], axis=1))) < 1e-6
 
 
 def test_the_frames_transforms_end_at_the_geotagged_camera(run: Run) -> None:
@@ -344,7 +349,7 @@ def test_readers_keep_working_on_the_new_channels(run: Run) -> None:
     n = assert_replay_reproduces_every_frame(path)
     assert n >= MIN_FRAMES
     data = gather(read(path))
-    assert len(data.track_t_s) > 300  # the report's track still comes from the telemetry
+    assert len(data.track_t_s) > 200  # the report's track still comes from the telemetry
     assert np.all(np.diff(data.track_t_s) >= 0) and 10.0 < data.duration_s < 60.0
 
 

@@ -8,7 +8,9 @@ which is fed what the file is fed, shows it during the flight):
 * ``/vehicle/location`` (foxglove.LocationFix): every GLOBAL_POSITION_INT of the vehicle (MSL
   altitude; covariance from the last GPS_RAW_INT's h_acc / v_acc), frame ``base_link``;
 * ``/tf`` (foxglove.FrameTransforms): ``enu -> base_link`` at every ATTITUDE_QUATERNION (position of
-  the last GLOBAL_POSITION_INT), and at every frame ``enu -> base_link`` from the frame's own
+  the last GLOBAL_POSITION_INT) once the ENU origin is fixed (the geotagger fixes it at the first
+  frame, from the oldest fix it holds, unless [camera] origin gives it; before that the vehicle is on
+  the map only: an origin chosen here could differ from the frames'), and at every frame ``enu -> base_link`` from the frame's own
   geotagged pose plus ``camera_mount -> camera_optical`` (what a gimbal turned the camera by;
   identity for a fixed mount);
 * ``/tf_static`` (foxglove.FrameTransforms): ``base_link -> camera_mount`` (lever arm and mounting

@@ -10,9 +10,9 @@ which is fed what the file is fed, shows it during the flight):
 * ``/tf`` (foxglove.FrameTransforms): ``enu -> base_link`` at every ATTITUDE_QUATERNION (position of
   the last GLOBAL_POSITION_INT) once the ENU origin is fixed (the geotagger fixes it at the first
   frame, from the oldest fix it holds, unless [camera] origin gives it; before that the vehicle is on
-  the map only: an origin chosen here could differ from the frames'), and at every frame ``enu -> base_link`` from the frame's own
-  geotagged pose plus ``camera_mount -> camera_optical`` (what a gimbal turned the camera by;
-  identity for a fixed mount);
+  the map only: an origin chosen here could differ from the frames'), and at every frame
+  ``enu -> base_link`` from the frame's own geotagged pose plus ``camera_mount -> camera_optical``
+  (what a gimbal turned the camera by; identity for a fixed mount);
 * ``/tf_static`` (foxglove.FrameTransforms): ``base_link -> camera_mount`` (lever arm and mounting
   from [camera]), once at the start;
 * ``/camera/calibration`` (foxglove.CameraCalibration): the pinhole model from [camera]

@@ -1,6 +1,6 @@
 """`icgt export LOG --images DIR --out DIR`: match the card's JPEGs to the log and write every export.
 
-    icgt export flight.mcap --images card/DCIM --out export/ [--formats csv,gpkg,geojson,kml,odm,opensfm,jpeg,ros2]
+    icgt export flight.mcap --images card/DCIM --out export/ [--formats csv,gpkg,geojson,kml,odm,opensfm,jpeg,ros2,ppk,mcap]
                 [--calibration camera.toml] [--plane E,N,U,nE,nN,nU] [--anchor range|structure]
                 [--geoid-separation auto|none|METRES] [--no-progress]
 
@@ -8,7 +8,8 @@ Writes into --out: frames.csv, icgt.gpkg (GeoPackage: cameras, footprints, footp
 cameras.geojson, footprints.geojson, icgt.kml (absolute MSL heights), geo.txt, exif_overrides.json,
 images/ (geotagged copies; the originals are only read), with ``ros2`` the ROS 2 bag ros2/ (not by
 default: it holds every sensor sample), with ``ppk`` the exposure events in GPS time for PPK tools
-(events_gpst.csv, Timestamp.MRK: `icgt.trajectories.ppk_events`) and problems.csv (one row per input problem:
+(events_gpst.csv, Timestamp.MRK: `icgt.trajectories.ppk_events`), with ``mcap`` foxglove.mcap (the
+log with every paired image on the timeline: `icgt.export.foxglove_mcap`) and problems.csv (one row per input problem:
 no fix, zero GPS, no UTC, an image without EXIF time or without an exposure, an exposure without an
 image, a damaged image, a camera GPS far from the log, HEIC files, RAW files without their JPEG;
 hidden and macOS AppleDouble ``._*`` files are skipped and listed as info rows). One bad image never

@@ -1,6 +1,7 @@
 """`icgt export LOG --images DIR --out DIR`: match the card's JPEGs to the log and write every export.
 
-    icgt export flight.mcap --images card/DCIM --out export/ [--formats csv,gpkg,geojson,kml,odm,opensfm,jpeg,ros2,ppk,mcap]
+    icgt export flight.mcap --images card/DCIM --out export/
+                [--formats csv,gpkg,geojson,kml,odm,opensfm,jpeg,ros2,ppk,mcap]
                 [--calibration camera.toml] [--plane E,N,U,nE,nN,nU] [--anchor range|structure]
                 [--geoid-separation auto|none|METRES] [--no-progress]
 

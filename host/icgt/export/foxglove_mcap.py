@@ -9,7 +9,12 @@ attachment of the recording, as recorded, plus for every frame paired with an im
   recording's [camera] configuration scaled to that copy's size (the recorded ``/camera/calibration``
   is for the full-size image), so Foxglove's Image panel and 3D frustum fit the picture.
 
-Both are placed on the timeline with the frame: log time = the /frames message's log time, publish
+A recording made before the recorder wrote the Foxglove views (no ``/vehicle/location``) gets them
+here, derived from its raw telemetry, device log and frames by the recorder's own
+`icgt.recorder.views` (its old per-frame ``/frames/location``, ``/frames/pose`` and ``/tf`` are
+replaced by theirs); each derived message is logged at its source message's log time.
+
+The images are placed on the timeline with their frame: log time = the /frames message's log time, publish
 time and timestamp = its publish time (mid-exposure on the recording's time base). The file is
 written in log-time order (a reorder buffer of `REORDER_WINDOW_NS`; a message later than that is
 written where it came, counted and logged), chunked, zstd-compressed and indexed by the official
@@ -73,6 +78,57 @@ def _image_messages(frame_publish_ns: int, path: Path, camera: Any, max_side_px:
     return image, camera_calibration(scaled, frame_publish_ns)
 
 
+class _Views:
+    """The recorder's Foxglove views re-derived from an old recording's raw inputs."""
+
+    TELEMETRY = frozenset(
+        layout.mavlink_topic(n) for n in ("GLOBAL_POSITION_INT", "ATTITUDE_QUATERNION", "GPS_RAW_INT")
+    )
+
+    def __init__(self, recording: Any, camera: Any, vehicle_system: int) -> None:
+        from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+        from icgt.recorder.views import TOPICS, FoxgloveViews
+
+        self.topics = TOPICS
+        offset = recording.monotonic_to_utc_offset_ns or 0
+        origin = recording.enu_origin
+        self.out: list[tuple[str, Any, int]] = []
+        self.views = FoxgloveViews(
+            camera, lambda t, m, ns: self.out.append((t, m, ns)), lambda ns: ns + offset, lambda: origin, vehicle_system
+        )
+        self.offset = offset
+        self._mav = mavlink2.MAVLink(None)
+        self.undecodable = 0
+        self.started = False
+
+    def feed(self, topic: str, data: bytes, publish_ns: int) -> list[tuple[str, Any, int]]:
+        """The view messages (topic, message, publish time) one source message gives."""
+        import base64
+        import json
+
+        self.out = []
+        if not self.started:  # the static mount and the calibration, at the first message
+            self.started = True
+            self.views.start(publish_ns - self.offset)
+        if topic in self.TELEMETRY:
+            d = json.loads(data)
+            try:
+                msg = self._mav.decode(bytearray(base64.b64decode(d["raw"])))
+            except Exception:  # pymavlink raises several kinds for a bad frame: counted
+                self.undecodable += 1
+                return []
+            self.views.on_mavlink(msg, int(d["host_rx_ns"]))
+        elif topic == layout.device_topic("LOG"):
+            d = json.loads(data)
+            self.views.on_device_log(int(d.get("level", 2)), str(d.get("text", "")), int(d.get("host_rx_ns", 0)))
+        elif topic == layout.FRAMES:
+            from icgt.ingest.reader import decode_frame
+
+            self.views.on_frame(decode_frame(json.loads(data)))
+        return [(t, m, ns + self.offset) for t, m, ns in self.out]
+
+
 def write_foxglove_mcap(
     log_path: Path,
     out_dir: Path,
@@ -80,11 +136,14 @@ def write_foxglove_mcap(
     camera: Any,
     *,
     max_side_px: int = DEFAULT_MAX_SIDE_PX,
+    recording: Any = None,
+    vehicle_system: int = 1,
 ) -> dict[str, int]:
     """Write OUT/foxglove.mcap; `images` maps frame_seq -> the card image paired with it.
 
-    `camera` is the recording's GeotagConfig (`icgt.ingest.recompute.recording_config`). Returns
-    counts: messages copied, images added, late messages.
+    `camera` is the recording's GeotagConfig (`icgt.ingest.recompute.recording_config`); `recording`
+    (`icgt.read`) lets the views be re-derived for a recording that lacks them. Returns counts:
+    messages copied, images added, view messages derived, late messages.
     """
     from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
     from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
@@ -95,7 +154,10 @@ def write_foxglove_mcap(
     if max_side_px < 16:
         raise FoxgloveExportError(f"image size {max_side_px} px: at least 16 px are needed")
     out = out_dir / FOXGLOVE_FILE
-    counts = {"copied": 0, "images": 0, "late": 0, "image_errors": 0}
+    counts = {"copied": 0, "images": 0, "derived": 0, "late": 0, "image_errors": 0}
+    derive = None
+    if recording is not None and layout.VEHICLE_LOCATION not in recording.topics():
+        derive = _Views(recording, camera, vehicle_system)
     try:
         with log_path.open("rb") as src, out.open("wb") as dst:
             reader = make_reader(src)
@@ -111,6 +173,7 @@ def write_foxglove_mcap(
 
             image_channel = own_channel(layout.CAMERA_IMAGE, CompressedImage)
             calibration_channel = own_channel(CALIBRATION_TOPIC, CameraCalibration)
+            view_channels = {t: own_channel(t, kind) for t, kind in derive.topics.items()} if derive else {}
             pending: list[tuple[int, int, int, bytes, int]] = []  # log, order, channel, data, publish
             order = 0
             last_written = -1
@@ -131,6 +194,12 @@ def write_foxglove_mcap(
 
             newest = 0
             for schema, channel, message in reader.iter_messages(log_time_order=False):
+                if derive is not None:
+                    for topic, view, publish in derive.feed(channel.topic, message.data, message.publish_time):
+                        push(message.log_time, view_channels[topic], view.SerializeToString(), publish)
+                        counts["derived"] += 1
+                    if channel.topic in view_channels:
+                        continue  # the old recorder's version of a view: replaced by the derived one
                 if channel.id not in channel_ids:
                     sid = 0
                     if schema is not None:
@@ -166,6 +235,8 @@ def write_foxglove_mcap(
             counts["late"],
             REORDER_WINDOW_NS / 1e9,
         )
+    if derive is not None and derive.undecodable:
+        log.warning("foxglove export: %d telemetry frames could not be decoded (no view from them)", derive.undecodable)
     if counts["image_errors"]:
         log.warning("foxglove export: %d images could not be read (not on the timeline)", counts["image_errors"])
     return counts

@@ -133,3 +133,20 @@ def test_device_log_levels() -> None:
     levels = [m.level for _, m, _ in out]
     assert levels == [Log.DEBUG, Log.INFO, Log.WARNING, Log.ERROR, Log.FATAL, Log.FATAL]
     assert {t for t, _, _ in out} == {layout.DEVICE_LOG_VIEW} and out[0][1].name == "icgt.device"
+
+
+def test_the_shipped_layout_is_the_one_the_sdk_types_make() -> None:
+    import json
+
+    from icgt.recording.foxglove_layout import build_layout
+
+    text = layout.FOXGLOVE_LAYOUT.read_text()
+    assert text == build_layout(), "run python -m icgt.recording.foxglove_layout"
+
+    def panels(node: Any) -> list[dict[str, Any]]:
+        if node.get("type") == "panel":
+            return [node]
+        return [p for item in node["items"] for p in panels(item["content"])]
+
+    kinds = sorted(p["panelType"] for p in panels(json.loads(text)["content"]))
+    assert kinds == ["Image", "Log", "Log", "Map", "Plot", "Plot", "RawMessages", "ThreeDee"]

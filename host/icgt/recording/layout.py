@@ -33,7 +33,8 @@ its views, the emission of a log line. (Recordings made before the two were sepa
 time = log time = the data's time.) Foxglove messages carry the publish time as their timestamp.
 
 ``icgt/recording/foxglove_layout.json`` (package data) is a Foxglove layout for these topics: map,
-3D view, image, log and plots (`FOXGLOVE_LAYOUT`).
+3D view, image, log and plots (`FOXGLOVE_LAYOUT`), made with the Foxglove SDK's layout types by
+`icgt.recording.foxglove_layout`.
 
 Metadata records: ``icgt.config`` (the effective configuration), ``icgt.sync`` (the synchroniser's
 settings as JSON: `icgt.sync.SyncConfig`), ``icgt.calibration`` (camera and mounting, for people),

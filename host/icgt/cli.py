@@ -65,7 +65,9 @@ def _cmd_record(args: argparse.Namespace) -> int:
     from icgt.recorder import Recorder, load_config
 
     config = load_config(args.config).with_overrides(device_url=args.device, mavlink_url=args.mavlink, out_dir=args.out)
-    recorder = Recorder(config, control_socket=args.socket or default_socket_path())
+    recorder = Recorder(
+        config, control_socket=args.socket or default_socket_path(), live_port=args.live, live_host=args.live_host
+    )
     path = recorder.start()
     print(f"recording to {path}; control socket {args.socket or default_socket_path()}", flush=True)
     _until_signal(recorder.stop)
@@ -180,6 +182,17 @@ def build_parser() -> argparse.ArgumentParser:
     record.add_argument("--out", type=Path, help="output directory")
     record.add_argument("--config", type=Path, help="recorder configuration (TOML)")
     record.add_argument("--socket", type=Path, help="control socket path (default: in $XDG_RUNTIME_DIR)")
+    record.add_argument(
+        "--live",
+        nargs="?",
+        const=8765,
+        type=int,
+        metavar="PORT",
+        help="serve every channel to the Foxglove app over WebSocket while recording (default port 8765)",
+    )
+    record.add_argument(
+        "--live-host", default="127.0.0.1", metavar="ADDRESS", help="address the live view binds (default 127.0.0.1)"
+    )
     record.set_defaults(func=_cmd_record)
 
     for name, func, text in (

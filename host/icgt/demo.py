@@ -19,6 +19,7 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -181,8 +182,10 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def fly(sc: Scenario, out_dir: Path) -> Flight:
-    """Run one scenario: simulator, `icgt record` as a separate process, a ground station commanding it."""
+def fly(sc: Scenario, out_dir: Path, record_args: Sequence[str] = ()) -> Flight:
+    """Run one scenario: simulator, `icgt record` as a separate process, a ground station commanding it.
+
+    `record_args`: more arguments for `icgt record` (e.g. ``--live PORT``)."""
     out_dir = out_dir.resolve()
     for stale in ("sim", "recording"):
         shutil.rmtree(out_dir / stale, ignore_errors=True)
@@ -197,7 +200,7 @@ def fly(sc: Scenario, out_dir: Path) -> Flight:
     recorder_log = log_path.open("w")
     recorder = subprocess.Popen(
         [sys.executable, "-m", "icgt.cli", "record", "--config", str(config_path), "--device", urls.device,
-         "--mavlink", urls.mavlink, "--out", str(rec_dir), "--socket", str(out_dir / "recorder.sock")],
+         "--mavlink", urls.mavlink, "--out", str(rec_dir), "--socket", str(out_dir / "recorder.sock"), *record_args],
         stdout=recorder_log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )  # fmt: skip
     gcs = GroundStation(urls.gcs, sc.autopilot.system_id)

@@ -1,6 +1,7 @@
 """`icgt export LOG --images DIR --out DIR`: match the card's JPEGs to the log and write every export.
 
-    icgt export flight.mcap --images card/DCIM --out export/ [--formats csv,gpkg,geojson,kml,odm,opensfm,jpeg,ros2]
+    icgt export flight.mcap --images card/DCIM --out export/
+                [--formats csv,gpkg,geojson,kml,odm,opensfm,jpeg,ros2,ppk,mcap]
                 [--calibration camera.toml] [--plane E,N,U,nE,nN,nU] [--anchor range|structure]
                 [--geoid-separation auto|none|METRES] [--no-progress]
 
@@ -9,7 +10,8 @@ cameras.geojson, footprints.geojson, icgt.kml (absolute MSL heights), geo.txt, e
 images/ (geotagged copies; the originals are only read), with ``fgb`` the same layers as FlatGeobuf
 (cameras.fgb, footprints.fgb, footprints_face.fgb), with ``ros2`` the ROS 2 bag ros2/ (not by
 default: it holds every sensor sample), with ``ppk`` the exposure events in GPS time for PPK tools
-(events_gpst.csv, Timestamp.MRK: `icgt.trajectories.ppk_events`) and problems.csv (one row per input problem:
+(events_gpst.csv, Timestamp.MRK: `icgt.trajectories.ppk_events`), with ``mcap`` foxglove.mcap (the
+log with every paired image on the timeline: `icgt.export.foxglove_mcap`) and problems.csv (one row per input problem:
 no fix, zero GPS, no UTC, an image without EXIF time or without an exposure, an exposure without an
 image, a damaged image, a camera GPS far from the log, HEIC files, RAW files without their JPEG;
 hidden and macOS AppleDouble ``._*`` files are skipped and listed as info rows). One bad image never
@@ -45,7 +47,7 @@ if TYPE_CHECKING:  # the heavy modules load when a command runs, not when the pa
 
 log = logging.getLogger(__name__)
 
-FORMATS = ("csv", "gpkg", "geojson", "kml", "odm", "opensfm", "jpeg", "ros2", "ppk", "fgb")
+FORMATS = ("csv", "gpkg", "geojson", "kml", "odm", "opensfm", "jpeg", "ros2", "ppk", "fgb", "mcap")
 DEFAULT_FORMATS = ("csv", "gpkg", "geojson", "kml", "odm", "opensfm", "jpeg")
 CSV_FILE = "frames.csv"
 PROBLEMS_FILE = "problems.csv"
@@ -306,7 +308,7 @@ def run_export(
     total = recording.topics().get(layout.FRAMES)
     frames = list(tqdm(recording.frames(), desc="frames", unit="frame", total=total, disable=not progress))
     ros2_only = set(formats) <= {"ros2"}  # the bag needs neither frames nor a camera model
-    camera_free = set(formats) <= {"ros2", "ppk"}  # nor do the PPK event files need a camera model
+    camera_free = set(formats) <= {"ros2", "ppk", "mcap"}  # nor do the PPK events and the enriched log
     if not frames and not ros2_only:
         raise ExportError(f"{log_path}: the recording has no frames (/frames is empty)")
     metadata = recording.metadata
@@ -348,6 +350,23 @@ def run_export(
 
         bag = write_ros2_bag(recording, out_dir)
         written["ros2 messages"] = bag.total
+    if "mcap" in wanted:
+        from icgt.export.foxglove_mcap import paired_images, write_foxglove_mcap
+        from icgt.ingest.recompute import recording_sync_config
+
+        if images is None:
+            log.warning("mcap export without --images: the enriched log has no camera images")
+        sync = recording_sync_config(recording)
+        fox = write_foxglove_mcap(
+            log_path,
+            out_dir,
+            paired_images(pairs),
+            sync.geotag,
+            recording=recording,
+            vehicle_system=sync.autopilot_system,
+        )
+        written["foxglove.mcap messages"] = fox["copied"]
+        written["foxglove.mcap images"] = fox["images"]
     if "ppk" in wanted:
         from icgt.trajectories.cli import export_ppk
 

@@ -30,8 +30,8 @@ topic                       type                            from
 ==========================  ==============================  =============================================
 
 One time base throughout, so tf lookups between topics hold: bag timestamps and every header
-stamp are the recording's log times (host CLOCK_MONOTONIC plus the recording's fixed offset, ns
-since the Unix epoch); messages are written in log-time order. A frame's stamp is its
+stamp are the recording's publish times (the data's time: host CLOCK_MONOTONIC plus the recording's
+fixed offset, ns since the Unix epoch); messages are written in that order. A frame's stamp is its
 mid-exposure on that base; /camera/time_reference gives its UTC (GPS-derived, which differs from
 the host's clock). Raw device and telemetry messages carry their host receipt time, as recorded
 (re-deriving device sample times is `icgt.ingest.recompute`'s job).
@@ -382,7 +382,7 @@ def _source(recording: Any) -> Iterator[tuple[str, int, dict[str, Any]]]:
     present = set(recording.topics())
     wanted = [t for t in _SOURCE_TOPICS if t in present]
     for m in recording.records(wanted):
-        yield m.topic, m.log_time_ns, m.data
+        yield m.topic, m.time_ns, m.data  # the data's time: a frame's mid-exposure, an input's receipt
 
 
 _REORDER_WINDOW_NS = 10_000_000_000

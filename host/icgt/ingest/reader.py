@@ -63,11 +63,18 @@ class IngestError(IcgtError):
 
 
 class LogMessage(NamedTuple):
-    """One message of a recording: its topic, log time [ns since the Unix epoch] and decoded content."""
+    """One message of a recording: its topic, log time [ns since the Unix epoch], decoded content, publish time."""
 
     topic: str
     log_time_ns: int
     data: dict[str, Any]
+    publish_time_ns: int | None = None
+
+    @property
+    def time_ns(self) -> int:
+        """The time of the data [ns since the Unix epoch]: its publish time (an input's receipt, a frame's
+        mid-exposure). Logs made before log time meant "when logged" have publish time = log time."""
+        return self.log_time_ns if self.publish_time_ns is None else self.publish_time_ns
 
 
 # ----------------------------------------------------------------------------- frame records
@@ -352,9 +359,10 @@ class Recording:
         return FrameTable.from_frames(self.frames())
 
     def messages(self, topic: str) -> Iterator[tuple[int, dict[str, Any]]]:
-        """(log_time_ns, decoded message) of one topic in log order: JSON topics as parsed, protobuf ones as dicts."""
+        """(time of the data [ns], decoded message) of one topic in file order (`LogMessage.time_ns`): JSON
+        topics as parsed, protobuf ones as dicts."""
         for msg in self._iter(frozenset({topic}), decode=True):
-            yield msg.log_time_ns, msg.data
+            yield msg.time_ns, msg.data
 
     def records(self, topics: Iterable[str] | None = None) -> Iterator[LogMessage]:
         """The messages of several topics (None: all) interleaved exactly as they are in the file."""
@@ -482,7 +490,7 @@ class Recording:
                         channel = summary.channels[record.channel_id]
                         schema = summary.schemas.get(channel.schema_id)
                         data = decoder(channel.topic, channel.message_encoding, schema, record.data) if decoder else {}
-                        yield LogMessage(channel.topic, record.log_time, data)
+                        yield LogMessage(channel.topic, record.log_time, data, record.publish_time)
             except IngestError:
                 raise
             except self._errors as exc:
@@ -506,7 +514,7 @@ class Recording:
                     continue
                 schema = schemas.get(channel.schema_id)
                 data = decoder(channel.topic, channel.message_encoding, schema, record.data) if decoder else {}
-                yield LogMessage(channel.topic, record.log_time, data)
+                yield LogMessage(channel.topic, record.log_time, data, record.publish_time)
 
     def _stream_records(self) -> Iterator[Any]:
         """Every record front to back (chunks opened); stops quietly at a record cut off by the end of the file."""

@@ -56,9 +56,10 @@ from icgt.protocol.messages import (
     Status,
     StopCapture,
 )
-from icgt.recorder import topics
+from icgt.recorder import topics, views
 from icgt.recorder.camera_link import CAMERA_IMAGES_SCHEMA, CameraImages, build_camera
 from icgt.recorder.config import RecorderConfig
+from icgt.recorder.views import FoxgloveViews
 from icgt.recording import McapRecorder, RecordingError, layout
 from icgt.recording.writer import McapLogHandler
 from icgt.sync import SyncConfig, Synchroniser
@@ -106,12 +107,25 @@ _OTHER_SYSTEMS_BATCH = 500  # other systems' MAVLink frames per /mavlink/other_s
 class Recorder:
     """One recording session. start() connects and begins writing; stop() ends it cleanly."""
 
-    def __init__(self, config: RecorderConfig, *, control_socket: Path | None = None) -> None:
+    def __init__(
+        self,
+        config: RecorderConfig,
+        *,
+        control_socket: Path | None = None,
+        live_port: int | None = None,
+        live_host: str = "127.0.0.1",
+    ) -> None:
+        """`live_port`: also serve every channel to the Foxglove app over WebSocket on `live_host`:`live_port`."""
         self.config = config
+        self._live = (live_port, live_host)
+        self.live: Any = None  # icgt.recording.live.LiveView while serving
         self._control_path = control_socket
         self._mono_to_utc_ns = time.time_ns() - time.monotonic_ns()  # fixed: log times stay monotonic
         self.sync_config = SyncConfig(geotag=config.camera, autopilot_system=config.mavlink.system_id)
         self.sync = Synchroniser(self.sync_config)  # fed and polled by the worker thread only
+        self.views = FoxgloveViews(
+            config.camera, self._write, self._log_time, lambda: self.sync.geotagger.origin, config.mavlink.system_id
+        )
         # MAVLink systems whose messages are logged field by field: the vehicle and its ground stations.
         self._expanded_systems = frozenset({config.mavlink.system_id, *config.mavlink.ground_station_systems})
         self._other_systems: list[dict[str, Any]] = []  # their raw frames, written once per inbox drain
@@ -204,7 +218,19 @@ class Recorder:
 
     def _open_log(self, path: Path) -> None:
         cfg = self.config
-        self.mcap = McapRecorder(path, max_chunk_interval_s=cfg.output.chunk_interval_s)
+        sinks: tuple[Any, ...] = ()
+        if self._live[0] is not None:
+            from icgt.recording.live import LiveView
+
+            self.live = LiveView(port=self._live[0], host=self._live[1])
+            sinks = (self.live,)
+        # Log times from the host's monotonic clock when each message is queued: the file in log-time order.
+        self.mcap = McapRecorder(
+            path,
+            max_chunk_interval_s=cfg.output.chunk_interval_s,
+            clock=lambda: time.monotonic_ns() + self._mono_to_utc_ns,
+            sinks=sinks,
+        )
         os.chmod(path, cfg.output.file_mode)  # private by default ([output] file_mode)
         # Until the autopilot has GPS time, UTC comes from this computer's clock (flagged as such): the
         # same fixed offset as the log times, which the recompute reads back from icgt.time_bases.
@@ -212,6 +238,7 @@ class Recorder:
         self._log_handler = McapLogHandler(self.mcap, topics.LOG)
         logging.getLogger("icgt").addHandler(self._log_handler)
         self._register_topics()
+        self.views.start(time.monotonic_ns())
         self.mcap.add_metadata(
             layout.META_CONFIG,
             {"source": cfg.source, "config": cfg.as_text(), "host_software": f"icgt {__version__}"},
@@ -224,7 +251,9 @@ class Recorder:
         self.mcap.add_metadata(
             layout.META_TIME_BASES,
             {
-                "log_time": "host CLOCK_MONOTONIC + a fixed offset to UTC taken at start [ns since the Unix epoch]",
+                "log_time": "host CLOCK_MONOTONIC + a fixed offset to UTC taken at start [ns since the Unix epoch], "
+                "when the message was logged: the file is in log-time order",
+                "publish_time": "the time of the data on the same base: receipt of an input, mid-exposure of a frame",
                 "monotonic_to_utc_offset_ns": str(self._mono_to_utc_ns),
                 "device_clock": "device microseconds since boot (DeviceClockFilter maps it to host monotonic)",
                 "autopilot_clock": "autopilot boot microseconds (TIMESYNC maps it to host monotonic)",
@@ -293,6 +322,8 @@ class Recorder:
             except RecordingError as exc:
                 log.error("%s", exc)
                 self.failure = self.failure or exc
+        if self.live is not None:
+            self.live.stop()
 
     # ------------------------------------------------------------------ log
     def _register_topics(self) -> None:
@@ -300,6 +331,8 @@ class Recorder:
         for topic, cls in layout.DEVICE_TOPIC_TYPES.items():
             self.mcap.register_json(topic, f"icgt.device.{cls.NAME}", topics.device_schema(cls))
         self.mcap.register_dataclass(topics.FRAMES, FrameRecord)
+        for name, kind in views.TOPICS.items():
+            self.mcap.register_protobuf(name, kind)
         for name in (layout.CLOCK_DEVICE, layout.CLOCK_AUTOPILOT):
             self.mcap.register_json(name, "icgt.clock.estimate", layout.ESTIMATE_SCHEMA)
         self.mcap.register_json(layout.CLOCK_DEVICE_EXCHANGES, "icgt.clock.exchange", layout.EXCHANGE_SCHEMA)
@@ -319,7 +352,7 @@ class Recorder:
         if self.mcap is None:
             return
         try:
-            self.mcap.write(topic, message, self._log_time(host_ns))
+            self.mcap.write(topic, message, publish_time_ns=self._log_time(host_ns))
         except RecordingError as exc:
             self._fatal(exc)
 
@@ -405,6 +438,7 @@ class Recorder:
         if msg.NAME == "EXPOSURE":
             self.exposures += 1
         elif isinstance(msg, Log):
+            self.views.on_device_log(msg.level, msg.text, host_rx_ns)
             log.log(_DEVICE_LOG_LEVELS.get(msg.level, logging.INFO), "device: %s", msg.text)
 
     def _on_device_link_event(self, event: DeviceLinkEvent) -> None:
@@ -537,6 +571,7 @@ class Recorder:
         self._write(topic, topics.mavlink_payload(rec.msg, rec.rx_ns), rec.rx_ns)
         self.sync.on_mavlink(rec.msg, rec.rx_ns)
         self._images.on_mavlink(rec.msg, rec.src_system, rec.rx_ns)
+        self.views.on_mavlink(rec.msg, rec.rx_ns)
 
     def _flush_other_systems(self) -> None:
         batch, self._other_systems = self._other_systems, []
@@ -557,15 +592,8 @@ class Recorder:
 
     def _on_frame(self, rec: FrameRecord) -> None:
         self.frames += 1
-        utc_ns = rec.mid_utc_us * 1000 if rec.mid_utc_us is not None else self._log_time(rec.mid_host_ns)
         self._write(topics.FRAMES, rec, rec.mid_host_ns)
-        fix = topics.location_fix(rec, utc_ns)
-        if fix is not None:
-            self._write(topics.FRAMES_LOCATION, fix, rec.mid_host_ns)
-        pose = topics.pose_and_transform(rec, utc_ns)
-        if pose is not None:
-            self._write(topics.FRAMES_POSE, pose[0], rec.mid_host_ns)
-            self._write(topics.TF, pose[1], rec.mid_host_ns)
+        self.views.on_frame(rec)
         if self.camera is not None:
             self._write(layout.CAMERA_IMAGES, self._images.publish(self.camera, rec), rec.mid_host_ns)
 

@@ -2,7 +2,8 @@
 
 Raw device messages and raw MAVLink messages are recorded as they came, one topic per
 message type, so poses can be recomputed later without re-flying. Their JSON Schemas are
-derived from the protocol table (device) and from pymavlink's field lists (MAVLink).
+derived from the protocol table (device) and from pymavlink's field lists (MAVLink). The Foxglove views
+of frames and telemetry are `icgt.recorder.views`.
 """
 
 from __future__ import annotations
@@ -12,12 +13,6 @@ import math
 from dataclasses import fields
 from typing import Any
 
-from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
-from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
-from foxglove_schemas_protobuf.LocationFix_pb2 import LocationFix
-from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
-
-from icgt.geotag import FrameRecord
 from icgt.protocol import Message
 from icgt.protocol.messages import FIELD_TYPES
 
@@ -59,12 +54,10 @@ __all__ = [
     "device_payload",
     "device_schema",
     "device_topic",
-    "location_fix",
     "mavlink_payload",
     "mavlink_raw_payload",
     "mavlink_schema",
     "mavlink_topic",
-    "pose_and_transform",
 ]
 
 _DEVICE_JSON_TYPES = {"f32": "number", "f64": "number"}
@@ -166,49 +159,3 @@ def mavlink_raw_payload(msg: Any, host_rx_ns: int) -> dict[str, Any]:
         "host_rx_ns": host_rx_ns,
         "raw": base64.b64encode(bytes(msg.get_msgbuf())).decode(),
     }
-
-
-def location_fix(rec: FrameRecord, utc_ns: int) -> LocationFix | None:
-    """The frame's camera position for Foxglove's map panel."""
-    if rec.lat_deg is None or rec.lon_deg is None or rec.alt_msl_m is None:
-        return None
-    fix = LocationFix(frame_id=CAMERA_FRAME, latitude=rec.lat_deg, longitude=rec.lon_deg, altitude=rec.alt_msl_m)
-    fix.timestamp.FromNanoseconds(utc_ns)
-    h = rec.h_acc_m if rec.h_acc_m is not None else 0.0
-    v = rec.v_acc_m if rec.v_acc_m is not None else 0.0
-    fix.position_covariance.extend([h * h, 0, 0, 0, h * h, 0, 0, 0, v * v])
-    fix.position_covariance_type = LocationFix.DIAGONAL_KNOWN if rec.h_acc_m is not None else LocationFix.UNKNOWN
-    return fix
-
-
-def _enu_quaternion(rec: FrameRecord) -> tuple[float, float, float, float] | None:
-    """Camera attitude camera->ENU (Foxglove's 3D view is ENU) from the record's camera->NED quaternion."""
-    if rec.cam_qw is None or rec.cam_qx is None or rec.cam_qy is None or rec.cam_qz is None:
-        return None
-    # q_enu = q(NED->ENU) * q_ned; NED->ENU is a 180 deg rotation about (1, 1, 0)/sqrt(2).
-    s = math.sqrt(0.5)
-    a = (0.0, s, s, 0.0)
-    b = (rec.cam_qw, rec.cam_qx, rec.cam_qy, rec.cam_qz)
-    return (
-        a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
-        a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
-        a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
-        a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0],
-    )
-
-
-def pose_and_transform(rec: FrameRecord, utc_ns: int) -> tuple[PoseInFrame, FrameTransforms] | None:
-    """The camera pose in the local ENU frame, as a pose and as a transform enu -> camera."""
-    q = _enu_quaternion(rec)
-    if q is None or rec.east_m is None or rec.north_m is None or rec.up_m is None:
-        return None
-    pose = PoseInFrame(frame_id=WORLD_FRAME)
-    pose.timestamp.FromNanoseconds(utc_ns)
-    pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = rec.east_m, rec.north_m, rec.up_m
-    o = pose.pose.orientation
-    o.w, o.x, o.y, o.z = q
-    tf = FrameTransform(parent_frame_id=WORLD_FRAME, child_frame_id=CAMERA_FRAME)
-    tf.timestamp.FromNanoseconds(utc_ns)
-    tf.translation.x, tf.translation.y, tf.translation.z = rec.east_m, rec.north_m, rec.up_m
-    tf.rotation.w, tf.rotation.x, tf.rotation.y, tf.rotation.z = q
-    return pose, FrameTransforms(transforms=[tf])

@@ -7,6 +7,10 @@ be recomputed later; derived ones (frames, clock estimates) say how they were ma
 * ``/frames`` (JSON, `FrameRecord`): one geotagged record per exposure;
 * ``/frames/location``, ``/frames/pose``, ``/tf`` (protobuf, Foxglove): the same frames for Foxglove's
   map and 3D panels;
+* ``/vehicle/location``, ``/tf``, ``/tf_static``, ``/camera/calibration``, ``/icgt/device_log``
+  (protobuf, Foxglove): the vehicle track at telemetry rate, the transform tree ``enu -> base_link ->
+  camera_mount -> camera_optical``, the camera's calibration and the device's log
+  (`icgt.recorder.views`); an export adds ``/camera/image`` (CompressedImage, `icgt.export.foxglove`);
 * ``/device/<message>`` (JSON): every device message (EXPOSURE, IMU, RANGE, PPS, HELLO, STATUS, LOG, ...)
   with its host receive time ``host_rx_ns``;
 * ``/mavlink/<message>`` (JSON): every MAVLink message received from the vehicle's system and the
@@ -25,6 +29,16 @@ be recomputed later; derived ones (frames, clock estimates) say how they were ma
   (``frame_seq``) and device trigger number it belongs to, capture_result and why
   (`icgt.recorder.camera_link`).
 
+Times: a message's log time is when the recorder handed it to the log (host CLOCK_MONOTONIC plus a
+fixed offset to UTC, ns since the Unix epoch), so the file is in log-time order; its publish time is
+the time of its data on the same base: the receipt of an input, the mid-exposure of a frame and of
+its views, the emission of a log line. (Recordings made before the two were separated have publish
+time = log time = the data's time.) Foxglove messages carry the publish time as their timestamp.
+
+``icgt/recording/foxglove_layout.json`` (package data) is a Foxglove layout for these topics: map,
+3D view, image, log and plots (`FOXGLOVE_LAYOUT`), made with the Foxglove SDK's layout types by
+`icgt.recording.foxglove_layout`.
+
 Metadata records: ``icgt.config`` (the effective configuration), ``icgt.sync`` (the synchroniser's
 settings as JSON: `icgt.sync.SyncConfig`), ``icgt.calibration`` (camera and mounting, for people),
 ``icgt.device``, ``icgt.time_bases``, ``icgt.enu_origin``, ``icgt.device_link``, ``icgt.mavlink_signing``
@@ -33,6 +47,7 @@ settings as JSON: `icgt.sync.SyncConfig`), ``icgt.calibration`` (camera and moun
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 from icgt.protocol import MESSAGE_TYPES, Message
@@ -41,6 +56,11 @@ FRAMES = "/frames"
 FRAMES_LOCATION = "/frames/location"
 FRAMES_POSE = "/frames/pose"
 TF = "/tf"
+TF_STATIC = "/tf_static"
+VEHICLE_LOCATION = "/vehicle/location"
+CAMERA_CALIBRATION = "/camera/calibration"
+CAMERA_IMAGE = "/camera/image"
+DEVICE_LOG_VIEW = "/icgt/device_log"
 LOG = "/icgt/log"
 LINK_EVENTS = "/icgt/link_events"
 COUNTERS = "/icgt/counters"
@@ -54,7 +74,10 @@ MAVLINK_PREFIX = "/mavlink/"
 MAVLINK_OTHER_SYSTEMS = "/mavlink/other_systems"
 CAMERA_IMAGES = "/camera/images"
 WORLD_FRAME = "enu"
-CAMERA_FRAME = "camera"
+BASE_FRAME = "base_link"
+MOUNT_FRAME = "camera_mount"
+CAMERA_FRAME = "camera_optical"
+FOXGLOVE_LAYOUT = Path(__file__).with_name("foxglove_layout.json")
 
 META_CONFIG = "icgt.config"
 META_SYNC = "icgt.sync"

@@ -39,7 +39,7 @@ class McapLogHandler(logging.Handler):
                 level=level, message=self.format(record), name=record.name, file=record.pathname, line=record.lineno
             )
             message.timestamp.FromNanoseconds(time_ns)
-            self._recorder.write(self._topic, message, time_ns)
+            self._recorder.write(self._topic, message, publish_time_ns=time_ns)  # logged now, in file order
         except RecordingError:
             pass  # the recorder has stopped and reports that itself; logging it here would loop
         except Exception:  # logging must never take the program down

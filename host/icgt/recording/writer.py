@@ -3,6 +3,15 @@
 Times: every `log_time_ns` / `publish_time_ns` is nanoseconds since the Unix epoch (UTC), as Foxglove
 expects; wall-clock intervals (`max_chunk_interval_s`) are seconds of `time.monotonic()`.
 
+Log-time order. A message written without a log time gets one from the recorder's `clock` when it is
+queued, under the queue lock: log time is then when the message was handed to the log, and because the
+writer thread keeps queue order, the file's messages are in log-time order (what `mcap doctor
+--strict-message-order` asks for), whichever threads write. The data's own time (a receipt, a
+mid-exposure) is the message's publish time. A caller that passes log times itself keeps that order.
+
+Sinks. Every registered topic and every message written is also handed to each `sink` (a
+`RecordingSink`, e.g. the live WebSocket view), in the writing thread, as the bytes that go to the file.
+
 Crash safety. Messages are collected in memory into one chunk; the chunk is compressed and written
 (chunk record + its message indexes in one write call) when it is `max_chunk_interval_s` old or
 `max_chunk_bytes` large, whichever comes first, even if no further message arrives, and then fsync'd.
@@ -30,7 +39,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from itertools import count
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Protocol
 
 import msgspec
 from google.protobuf.message import Message as ProtobufMessage
@@ -56,6 +65,7 @@ __all__ = [
     "McapLogHandler",
     "McapRecorder",
     "RecordingError",
+    "RecordingSink",
     "RecordingStats",
     "iso_utc",
     "message_record",
@@ -76,6 +86,18 @@ class RecordingStats:
     last_log_time_ns: int | None
     complete: bool
     error: str | None
+
+
+class RecordingSink(Protocol):
+    """Something fed every channel and message of a recording besides the file (the live view)."""
+
+    def add_channel(
+        self, topic: str, message_encoding: str, schema: tuple[str, str, bytes], metadata: Mapping[str, str]
+    ) -> None:
+        """A new topic: schema is (name, encoding, data) as in the file."""
+
+    def message(self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int) -> None:
+        """One message as encoded for the file; must not block (it runs in the writer's caller)."""
 
 
 @dataclass
@@ -126,8 +148,14 @@ class McapRecorder:
         queue_size: int = 50_000,
         put_timeout_s: float = 5.0,
         opener: Callable[[Path], IO[bytes]] | None = None,
+        clock: Callable[[], int] = time.time_ns,
+        sinks: tuple[RecordingSink, ...] = (),
     ) -> None:
         """Creates `path` (never overwriting) and starts the writer thread.
+
+        `clock` gives the log time [ns since the Unix epoch] of messages written without one (taken
+        when queued, so the file stays in log-time order); it must never go backwards (the recorder
+        passes host CLOCK_MONOTONIC plus a fixed offset). `sinks` are fed every channel and message too.
 
         `profile` is the MCAP header profile: empty, since the file mixes protobuf and JSON channels,
         which no well-known profile describes. `opener` replaces `open(path, "xb", buffering=0)`
@@ -141,6 +169,8 @@ class McapRecorder:
         self._interval = max_chunk_interval_s
         self._fsync = fsync
         self._put_timeout_s = put_timeout_s
+        self._clock = clock
+        self._sinks = tuple(sinks)
         self._file = self._create(opener, profile, compression, max_chunk_bytes)
         self._pending: deque[_Item] = deque()
         self._max_pending = queue_size
@@ -236,17 +266,22 @@ class McapRecorder:
             self._schema_ids[schema] = schema_id
             entry = _Topic(channel_id, schema_id, kind, encode)
             self._topics[topic] = entry
-            return entry
+        for sink in self._sinks:
+            _feed_sink(sink.add_channel, topic, message_encoding, schema, meta)
+        return entry
 
     # --- writing ----------------------------------------------------------------------------------
 
-    def write(self, topic: str, message: Any, log_time_ns: int, publish_time_ns: int | None = None) -> None:
+    def write(
+        self, topic: str, message: Any, log_time_ns: int | None = None, publish_time_ns: int | None = None
+    ) -> None:
         """Records one message; thread-safe, returns once queued (not yet on disk).
 
         `message`: a protobuf message, a dataclass instance, or a mapping for a `register_json` topic.
-        `log_time_ns`: when the host received the data, ns since the Unix epoch; `publish_time_ns`: when
-        its source produced it, same epoch (defaults to log_time_ns). Raises RecordingError after a
-        write error, after close(), or for a message that does not fit its topic.
+        `log_time_ns`: when it was logged, ns since the Unix epoch; None (the recorder's way): the
+        `clock` when queued, which keeps the file in log-time order. `publish_time_ns`: the time of the
+        data (its receipt, its mid-exposure), same epoch; defaults to the log time. Raises
+        RecordingError after a write error, after close(), or for a message that does not fit its topic.
         """
         entry = self._topics.get(topic)
         if entry is None:
@@ -257,6 +292,23 @@ class McapRecorder:
             data = entry.encode(message)
         except (TypeError, ValueError) as exc:
             raise RecordingError(f"cannot encode a message for {topic}: {exc}") from exc
+        if log_time_ns is not None:
+            self._enqueue(self._message_item(entry, log_time_ns, publish_time_ns, data))
+            log_time = log_time_ns
+        else:
+            stamped: list[int] = []
+
+            def make() -> _Item:
+                stamped.append(self._clock())
+                return self._message_item(entry, stamped[-1], publish_time_ns, data)
+
+            self._enqueue(make)
+            log_time = stamped[-1] if stamped else self._clock()  # not queued: see _enqueue
+        for sink in self._sinks:
+            _feed_sink(sink.message, topic, data, log_time, log_time if publish_time_ns is None else publish_time_ns)
+
+    @staticmethod
+    def _message_item(entry: _Topic, log_time_ns: int, publish_time_ns: int | None, data: bytes) -> _Item:
         publish = log_time_ns if publish_time_ns is None else publish_time_ns
         try:
             record = message_record(entry.channel_id, next(entry.sequence) & 0xFFFFFFFF, log_time_ns, publish, data)
@@ -264,7 +316,7 @@ class McapRecorder:
             raise RecordingError(
                 f"times must be integers in [0, 2**64) ns since the Unix epoch, got {log_time_ns!r}, {publish!r}"
             ) from None
-        self._enqueue((entry.channel_id, log_time_ns, record, time.monotonic()))
+        return (entry.channel_id, log_time_ns, record, time.monotonic())
 
     def _auto_register(self, topic: str, message: Any) -> _Topic:
         if isinstance(message, ProtobufMessage):
@@ -300,7 +352,8 @@ class McapRecorder:
             raise RecordingError(f"{self.path}: the disk did not take the data within {timeout_s} s")
         self._raise_if_failed()
 
-    def _enqueue(self, item: _Item) -> None:
+    def _enqueue(self, item: _Item | Callable[[], _Item]) -> None:
+        """Queues an item; a callable is called under the lock to make it (a message stamped with the clock)."""
         deadline = None
         while True:
             with self._lock:
@@ -308,6 +361,8 @@ class McapRecorder:
                 if self._closing:
                     raise RecordingError(f"{self.path} is closed")
                 if len(self._pending) < self._max_pending:
+                    if callable(item):
+                        item = item()
                     self._pending.append(item)
                     # Read after the append: the writer sets _writer_idle before its last look at the
                     # queue, so either it sees this item or we see the flag (see _wait_for_work).
@@ -477,6 +532,24 @@ class McapRecorder:
             if exc_type is None:
                 raise
             # an exception is already on its way out; ours is in the log and in self.error
+
+
+_sink_failures = [0]
+
+
+def _feed_sink(call: Callable[..., None], *args: Any) -> None:
+    """A sink's failure is counted and the first one logged, never raised: the file comes first."""
+    try:
+        call(*args)
+    except Exception:
+        _sink_failures[0] += 1
+        if _sink_failures[0] == 1:  # once: the log itself goes through the sinks
+            logger.exception("a recording sink failed (the file is not affected; later failures are counted)")
+
+
+def sink_failures() -> int:
+    """How many times a sink raised in this process."""
+    return _sink_failures[0]
 
 
 def _serialize_protobuf(message: Any) -> bytes:

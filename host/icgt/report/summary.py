@@ -105,9 +105,9 @@ def gather(recording: Any, images: Path | None = None) -> FlightData:
     status: dict[str, int] = {}
     first = next(iter(recording.records()), None)
     if first is not None:
-        t0 = _host_ns(first.log_time_ns, offset)
+        t0 = _host_ns(first.time_ns, offset)
     for msg in recording.records(wanted):
-        host = _host_ns(msg.log_time_ns, offset)
+        host = _host_ns(msg.time_ns, offset)
         d = msg.data
         if msg.topic == _TRACK:
             if isinstance(d.get("lat"), int) and isinstance(d.get("lon"), int) and isinstance(d.get("alt"), int):

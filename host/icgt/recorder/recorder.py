@@ -25,6 +25,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 
 from icgt import __version__
@@ -37,29 +38,26 @@ from icgt.device import (
     DeviceLinkEvent,
     TimeSyncSample,
 )
+from icgt.device.limits import BoardLimits, LimitError, for_board
 from icgt.errors import IcgtError
 from icgt.geodesy import q_conjugate, q_multiply
 from icgt.geotag import FrameRecord
 from icgt.geotag.geotagger import _Q_CAM_TO_BODY_BASE
-from icgt.mavlink.camera import CameraComponent, CameraConfig, CameraInfo, CapturedImage, CommandResult
+from icgt.mavlink.camera import CameraComponent, CameraConfig, CameraInfo, CapturedImage, CommandResult, HandlerResult
 from icgt.mavlink.link import LinkConfig, MavlinkEvent, MavlinkLink, MavlinkMessage, StreamRate
 from icgt.protocol import PROTOCOL_VERSION, TABLE_HASH
 from icgt.protocol import Received as DeviceReceived
 from icgt.protocol.messages import (
     Board,
-    CaptureMode,
     ClockSource,
-    Configure,
     Hello,
     Log,
     LogLevel,
-    PinPolarity,
     SetTime,
-    StartCapture,
     Status,
     StopCapture,
 )
-from icgt.recorder import topics
+from icgt.recorder import capture, topics
 from icgt.recorder.config import RecorderConfig
 from icgt.recording import McapRecorder, RecordingError, layout
 from icgt.recording.writer import McapLogHandler
@@ -138,6 +136,7 @@ class Recorder:
         self._snapshot: dict[str, Any] = {}
         self._waiting_for_device = False
         self.failure: IcgtError | None = None
+        self._sensors = config.sensors  # what the device was configured with (a sensor that does not answer: off)
 
     @property
     def last_status(self) -> Status | None:
@@ -360,27 +359,17 @@ class Recorder:
     # ------------------------------------------------------------------ device
     def _configure_device(self) -> None:
         assert self.device is not None
-        s = self.config.sensors
-        polarity = int(PinPolarity.FOCUS_ACTIVE_HIGH | PinPolarity.SHUTTER_ACTIVE_HIGH | PinPolarity.PPS_RISING)
-        if s.feedback_active_high:
-            polarity |= int(PinPolarity.FEEDBACK_ACTIVE_HIGH)
-        cmd = Configure(
-            imu_rate_hz=s.imu_rate_hz,
-            imu_mode=0x0C if s.imu_mode == "ndof" else 0x08,
-            imu_ext_crystal=0,
-            range_rate_hz=s.range_rate_hz if s.lidar_model != "none" else 0,
-            lidar_model=_LIDAR_MODELS[s.lidar_model],
-            lidar_preset=s.lidar_preset,
-            lidar_bias_every=s.lidar_bias_every,
-            polarity=polarity,
-            feedback_enabled=1 if s.feedback else 0,
-            feedback_timeout_us=int(s.feedback_timeout_s * 1e6),
-        )
-        try:
-            self.device.command(cmd)
-        except CommandRefusedError as exc:
-            # A missing sensor must not stop capture: record why and go on with what the device has.
-            log.warning("device kept its configuration: %s", exc)
+        sensors = self.config.sensors
+        for _ in range(3):  # at most: without the IMU, then without the LiDAR
+            try:
+                self.device.command(capture.configure_command(sensors, self._limits()))
+                break
+            except CommandRefusedError as exc:
+                # Never record with the device's old settings: go on only without a sensor that does not
+                # answer (said loudly), refuse to start otherwise.
+                sensors = capture.configure_refused(sensors, exc.code, exc.detail, str(exc))
+                log.warning("%s: recording without it", exc)
+        self._sensors = sensors
         if self.config.device.set_rtc:
             try:
                 self.device.command(SetTime(utc_us=time.time_ns() // 1000))
@@ -440,21 +429,9 @@ class Recorder:
         assert self.device is not None
         c = self.config.capture
         interval_s, count = check_capture_request(interval_s, count, c.shutter_pulse_s)
-        interval_us = int((interval_s if interval_s is not None else c.interval_s) * 1e6)
-        if count == 1:
-            mode = CaptureMode.SINGLE
-        elif count > 1:
-            mode = CaptureMode.COUNT
-        else:
-            mode = CaptureMode.FOCUS_BURST if c.mode == "focus_burst" else CaptureMode.INTERVAL
-        cmd = StartCapture(
-            mode=int(mode),
-            interval_us=interval_us,
-            count=count if count > 1 else 0,
-            focus_lead_us=int(c.focus_lead_s * 1e6) if mode == CaptureMode.FOCUS_BURST else 0,
-            burst_us=int(c.burst_s * 1e6) if mode == CaptureMode.FOCUS_BURST else 0,
-            shutter_pulse_us=int(c.shutter_pulse_s * 1e6),
-        )
+        config = msgspec.structs.replace(self.config, sensors=self._sensors)
+        cmd, mode = capture.start_command(config, interval_s, count, self._limits())  # LimitError: nothing sent
+        interval_us = cmd.interval_us
         self.device.command(cmd)
         self._capturing = count != 1
         if self.camera is not None:
@@ -470,9 +447,15 @@ class Recorder:
         log.info("capture stopped")
 
     # camera component handler (CaptureHandler protocol)
-    def _handler_result(self, action: Any) -> CommandResult:
+    def _limits(self) -> BoardLimits:
+        return for_board(self.hello.board if self.hello is not None else None)
+
+    def _handler_result(self, action: Any) -> CommandResult | HandlerResult:
         try:
             action()
+        except LimitError as exc:
+            log.warning("%s", exc)
+            return capture.denied(exc)
         except (CommandRefusedError, CaptureRequestError) as exc:
             log.warning("%s", exc)
             return CommandResult.DENIED
@@ -797,13 +780,13 @@ class _CaptureHandler:
     def __init__(self, recorder: Recorder) -> None:
         self._r = recorder
 
-    def start(self, interval_s: float, count: int) -> CommandResult:
+    def start(self, interval_s: float, count: int) -> CommandResult | HandlerResult:
         # MAV_CMD_IMAGE_START_CAPTURE: interval 0 asks for the camera's own (the configured one).
         interval = None if interval_s == 0 else interval_s
         return self._r._handler_result(lambda: self._r.start_capture(interval, count))
 
-    def stop(self) -> CommandResult:
+    def stop(self) -> CommandResult | HandlerResult:
         return self._r._handler_result(self._r.stop_capture)
 
-    def shoot(self) -> CommandResult:
+    def shoot(self) -> CommandResult | HandlerResult:
         return self._r._handler_result(lambda: self._r.start_capture(None, 1))

@@ -319,6 +319,53 @@ TEST(App, TwentyFpsWithAShutterLagNearTheIntervalPairsEveryExposure) {
   }
 }
 
+// A burst longer than the camera's buffer: 20 fps into a 10-frame buffer that the card empties
+// at 5 frames/s. The camera stops answering after 10 shots and then answers one press in four;
+// the device reports exactly the presses the camera ignored as feedback_missing and pairs
+// every exposure it made.
+TEST(App, ABurstThatFillsTheCameraBufferReportsEveryIgnoredTrigger) {
+  sim::SimBoardConfig board_cfg;
+  board_cfg.camera.latency_us = 48'000;
+  board_cfg.camera.latency_jitter_us = 2'000;
+  board_cfg.camera.buffer_shots = 10;
+  board_cfg.camera.write_us = 200'000;
+  board_cfg.camera.min_frame_period_us = 50'000;
+  Rig rig(board_cfg);
+  rig.run_for(2'000'000);
+  auto cfg = default_configure();
+  cfg.feedback_timeout_us = 0;
+  cfg.feedback_min_lag_us = 40'000;
+  (void)rig.host.send(cfg);
+  rig.run_for(100'000);
+  auto start = interval_capture(50'000, 10'000);
+  start.mode = static_cast<uint8_t>(proto::CaptureMode::count);
+  start.count = 60;
+  const uint32_t start_seq = rig.host.send(start);
+  rig.run_for(3'600'000);
+  ASSERT_EQ(rig.host.ack_for(start_seq).error_code, 0u);
+
+  const auto& cam = rig.board.camera();
+  ASSERT_GE(cam.ignored().size(), 30u) << "the buffer filled";
+  for (const auto& ig : cam.ignored()) EXPECT_EQ(ig.reason, sim::IgnoredReason::buffer_full);
+  std::vector<uint32_t> ignored;
+  for (const auto& ig : cam.ignored()) ignored.push_back(ig.trigger_index);
+  std::vector<uint32_t> flagged;
+  std::size_t paired = 0;
+  for (const auto& m : rig.host.of(proto::MsgId::EXPOSURE)) {
+    const auto e = m.as<proto::Exposure>();
+    if (e.flags & proto::ExposureFlags::feedback_missing) {
+      flagged.push_back(e.image_index);
+    } else {
+      ASSERT_LT(paired, cam.exposures().size());
+      EXPECT_EQ(e.feedback_start_t_us, cam.exposures()[paired].start_t_us) << "image " << e.image_index;
+      ++paired;
+    }
+  }
+  EXPECT_EQ(flagged, ignored) << "exactly the presses the camera ignored are reported missing";
+  EXPECT_EQ(paired, cam.exposures().size());
+  EXPECT_EQ(paired + flagged.size(), 60u);
+}
+
 TEST(App, MalformedAndUnknownFramesAreAnsweredWhenTheirHeaderIsTrustworthy) {
   Rig rig;
   rig.run_for(100'000);

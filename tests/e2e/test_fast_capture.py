@@ -54,16 +54,21 @@ def test_every_exposure_is_paired_and_every_ignored_press_reported(flight: Fligh
 
 
 def test_the_recorder_kept_up(flight: Flight) -> None:
+    # Frame latency: from the EXPOSURE's arrival (its record's log time) to its frame's record.
+    arrived: dict[int, int] = {}
     latencies_ms: list[float] = []
     with flight.mcap.open("rb") as f:
-        for _, _, m in make_reader(f).iter_messages(topics=[layout.FRAMES]):
-            fr: dict[str, Any] = json.loads(m.data)
-            if fr.get("mid_host_ns"):
-                latencies_ms.append((m.log_time - int(fr["mid_host_ns"])) / 1e6)
+        for _, channel, m in make_reader(f).iter_messages(topics=["/device/exposure", layout.FRAMES]):
+            rec: dict[str, Any] = json.loads(m.data)
+            if channel.topic == "/device/exposure" and rec.get("image_index"):
+                arrived[int(rec["image_index"])] = m.log_time
+            elif channel.topic == layout.FRAMES and int(rec.get("image_index") or 0) in arrived:
+                latencies_ms.append((m.log_time - arrived[int(rec["image_index"])]) / 1e6)
     assert len(latencies_ms) >= 40
     latencies_ms.sort()
     # A frame waits for the pose after its exposure (the autopilot's next samples) and the worker's
     # 10 ms poll; a recorder falling behind at 20 fps would grow this without bound.
+    assert 0.0 <= latencies_ms[0]
     assert latencies_ms[len(latencies_ms) // 2] < 500.0, latencies_ms[-5:]
     assert latencies_ms[-1] < 3000.0, latencies_ms[-5:]
     log = flight.recorder_log.read_text()

@@ -54,8 +54,9 @@ class LimitError(IcgtError):
     """A value the device would refuse; `limit` is the protocol's name for the limit broken."""
 
     def __init__(self, limit: Limit, message: str) -> None:
-        super().__init__(f"{message} (limit {limit.name.lower()})")
+        super().__init__(message if limit == Limit.NONE else f"{message} (limit {limit.name.lower()})")
         self.limit = limit
+        self.message = message
 
 
 @dataclass(frozen=True, kw_only=True)

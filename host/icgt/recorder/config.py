@@ -121,10 +121,12 @@ class CaptureSection(_Section, frozen=True, kw_only=True):
         if self.shutter_pulse_s >= self.interval_s:
             raise ValueError(
                 f"shutter_pulse_s ({self.shutter_pulse_s}) must be shorter than interval_s ({self.interval_s}): "
-                "the line must go inactive between shots"
+                "the line must go inactive between shots (limit pulse_vs_interval)"
             )
         if self.mode == "focus_burst" and self.burst_s < self.interval_s:
-            raise ValueError(f"burst_s ({self.burst_s}) must be at least interval_s ({self.interval_s}) in focus_burst")
+            raise ValueError(
+                f"burst_s ({self.burst_s}) must be at least interval_s ({self.interval_s}) in focus_burst (limit burst)"
+            )
 
 
 class SensorsSection(_Section, frozen=True, kw_only=True):

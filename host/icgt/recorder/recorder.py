@@ -38,7 +38,7 @@ from icgt.device import (
     DeviceLinkEvent,
     TimeSyncSample,
 )
-from icgt.device.limits import BoardLimits, LimitError, for_board
+from icgt.device.limits import CORE, BoardLimits, LimitError, check_capture, for_board
 from icgt.errors import IcgtError
 from icgt.geodesy import q_conjugate, q_multiply
 from icgt.geotag import FrameRecord
@@ -51,6 +51,7 @@ from icgt.protocol.messages import (
     Board,
     ClockSource,
     Hello,
+    Limit,
     Log,
     LogLevel,
     SetTime,
@@ -453,10 +454,10 @@ class Recorder:
     def _handler_result(self, action: Any) -> CommandResult | HandlerResult:
         try:
             action()
-        except LimitError as exc:
+        except LimitError as exc:  # CaptureRequestError too
             log.warning("%s", exc)
             return capture.denied(exc)
-        except (CommandRefusedError, CaptureRequestError) as exc:
+        except CommandRefusedError as exc:
             log.warning("%s", exc)
             return CommandResult.DENIED
         except DeviceLinkError as exc:
@@ -718,12 +719,15 @@ class Recorder:
         return {"error": f"unknown command {command!r} (start, stop, status)"}
 
 
-class CaptureRequestError(IcgtError):
+class CaptureRequestError(LimitError):
     """A start-capture request (control socket, ground station, command line) with a value out of range."""
 
+    def __init__(self, message: str, limit: Limit = Limit.NONE) -> None:
+        super().__init__(limit, message)
 
-MIN_INTERVAL_S = 0.05  # the firmware's trigger: 20 fps at most
-MAX_INTERVAL_S = 3600.0
+
+MIN_INTERVAL_S = CORE.min_interval_s  # the firmware's trigger: 20 fps at most (icgt.device.limits)
+MAX_INTERVAL_S = CORE.max_interval_s
 MAX_COUNT = 0xFFFF  # START_CAPTURE.count is a u16
 
 
@@ -732,14 +736,10 @@ def check_capture_request(interval_s: Any, count: Any, shutter_pulse_s: float) -
     if interval_s is not None:
         if isinstance(interval_s, bool) or not isinstance(interval_s, int | float) or not math.isfinite(interval_s):
             raise CaptureRequestError(f"interval_s {interval_s!r}: a number of seconds between shots is needed")
-        if not MIN_INTERVAL_S <= interval_s <= MAX_INTERVAL_S:
-            raise CaptureRequestError(
-                f"interval_s {interval_s}: allowed {MIN_INTERVAL_S} .. {MAX_INTERVAL_S} s (the trigger's limits)"
-            )
-        if shutter_pulse_s >= interval_s:
-            raise CaptureRequestError(
-                f"interval_s {interval_s}: must be longer than the shutter pulse ({shutter_pulse_s} s)"
-            )
+        try:
+            check_capture(mode="interval", interval_s=interval_s, shutter_pulse_s=shutter_pulse_s, feedback=False)
+        except LimitError as exc:
+            raise CaptureRequestError(exc.message, exc.limit) from None
     if isinstance(count, bool) or not isinstance(count, int):
         if isinstance(count, float) and count.is_integer() and math.isfinite(count):
             count = int(count)

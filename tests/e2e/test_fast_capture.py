@@ -12,16 +12,12 @@ bounded time of their exposure).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
-from typing import Any
 
 import pytest
-from mcap.reader import make_reader
 from pymavlink import mavutil
 
 from icgt.demo import Flight, fly
-from icgt.recording import layout
 from icgt.sim.evaluate import camera_misses, evaluate, read_frames, read_truth
 from icgt.sim.scenario import load_scenario
 
@@ -39,7 +35,7 @@ def test_every_exposure_is_paired_and_every_ignored_press_reported(flight: Fligh
     frames = read_frames(flight.mcap)
     truth = read_truth(flight.truth_exposures)
     result = evaluate(flight.scenario, frames, truth)
-    assert result["true_exposures"] >= 40
+    assert result["frames"] >= 60 and result["true_exposures"] >= 30, result
     assert result["matched"] == result["true_exposures"], result
     assert result["exposures_missing_from_log"] == 0
     assert result["frames_without_exposure_not_flagged"] == 0
@@ -54,21 +50,17 @@ def test_every_exposure_is_paired_and_every_ignored_press_reported(flight: Fligh
 
 
 def test_the_recorder_kept_up(flight: Flight) -> None:
-    # Frame latency: from the EXPOSURE's arrival (its record's log time) to its frame's record.
-    arrived: dict[int, int] = {}
-    latencies_ms: list[float] = []
-    with flight.mcap.open("rb") as f:
-        for _, channel, m in make_reader(f).iter_messages(topics=["/device/exposure", layout.FRAMES]):
-            rec: dict[str, Any] = json.loads(m.data)
-            if channel.topic == "/device/exposure" and rec.get("image_index"):
-                arrived[int(rec["image_index"])] = m.log_time
-            elif channel.topic == layout.FRAMES and int(rec.get("image_index") or 0) in arrived:
-                latencies_ms.append((m.log_time - arrived[int(rec["image_index"])]) / 1e6)
-    assert len(latencies_ms) >= 40
-    latencies_ms.sort()
+    # Frame latency: mid-exposure to CAMERA_IMAGE_CAPTURED at the ground station (both host monotonic).
+    mid = {int(fr["image_index"]): int(fr["mid_host_ns"]) for fr in read_frames(flight.mcap) if fr["image_index"]}
+    latencies_ms = sorted(
+        (rx - mid[m.image_index]) / 1e6
+        for m, rx in zip(flight.gcs.images, flight.gcs.image_rx_ns, strict=True)
+        if m.image_index in mid
+    )
+    assert len(latencies_ms) >= 0.9 * len(mid), (len(latencies_ms), len(mid))
     # A frame waits for the pose after its exposure (the autopilot's next samples) and the worker's
     # 10 ms poll; a recorder falling behind at 20 fps would grow this without bound.
-    assert 0.0 <= latencies_ms[0]
+    assert latencies_ms[0] >= 0.0
     assert latencies_ms[len(latencies_ms) // 2] < 500.0, latencies_ms[-5:]
     assert latencies_ms[-1] < 3000.0, latencies_ms[-5:]
     log = flight.recorder_log.read_text()

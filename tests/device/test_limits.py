@@ -183,3 +183,23 @@ def test_twenty_fps_is_accepted_in_every_mode_with_the_derived_timeout() -> None
         start_command(cfg, 0.049, 0, CORE)
     assert err.value.limit == Limit.INTERVAL
     assert isinstance(RecorderConfig(), RecorderConfig)  # the defaults pass their own checks
+
+
+def test_a_refused_configure_is_never_recorded_through_silently() -> None:
+    from icgt.protocol.messages import ErrorCode
+    from icgt.recorder.capture import ConfigureRefusedError, configure_command, configure_refused
+
+    sensors = RecorderConfig().sensors
+    without_imu = configure_refused(sensors, int(ErrorCode.SENSOR_MISSING), int(Limit.IMU_MISSING), "x")
+    assert without_imu.imu_rate_hz == 0 and configure_command(without_imu, CORE).imu_rate_hz == 0
+    without_lidar = configure_refused(sensors, int(ErrorCode.SENSOR_MISSING), int(Limit.LIDAR_MISSING), "x")
+    assert configure_command(without_lidar, CORE).range_rate_hz == 0
+    for code, detail in [
+        (ErrorCode.OUT_OF_RANGE, Limit.IMU_RATE),
+        (ErrorCode.SENSOR_MISSING, Limit.FEEDBACK_LINE_MISSING),
+        (ErrorCode.BUSY_CAPTURING, Limit.NONE),
+    ]:
+        with pytest.raises(ConfigureRefusedError, match="not recording with the device's previous settings"):
+            configure_refused(sensors, int(code), int(detail), "device refused CONFIGURE")
+    cmd = configure_command(sensors, CORE)
+    assert (cmd.feedback_timeout_us, cmd.feedback_min_lag_us) == (0, 0)  # derived per capture by the device

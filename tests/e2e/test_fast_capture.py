@@ -52,16 +52,19 @@ def test_every_exposure_is_paired_and_every_ignored_press_reported(flight: Fligh
 def test_the_recorder_kept_up(flight: Flight) -> None:
     # Frame latency: mid-exposure to CAMERA_IMAGE_CAPTURED at the ground station (both host monotonic).
     mid = {int(fr["image_index"]): int(fr["mid_host_ns"]) for fr in read_frames(flight.mcap) if fr["image_index"]}
-    latencies_ms = sorted(
+    latencies_ms = [
         (rx - mid[m.image_index]) / 1e6
         for m, rx in zip(flight.gcs.images, flight.gcs.image_rx_ns, strict=True)
         if m.image_index in mid
-    )
+    ]
     assert len(latencies_ms) >= 0.9 * len(mid), (len(latencies_ms), len(mid))
-    # A frame waits for the pose after its exposure (the autopilot's next samples) and the worker's
-    # 10 ms poll; a recorder falling behind at 20 fps would grow this without bound.
-    assert latencies_ms[0] >= 0.0
-    assert latencies_ms[len(latencies_ms) // 2] < 500.0, latencies_ms[-5:]
-    assert latencies_ms[-1] < 3000.0, latencies_ms[-5:]
+    assert min(latencies_ms) >= 0.0
+    # A frame waits for the autopilot's pose after its exposure and then crosses the simulated
+    # autopilot to the ground station (both share this loaded machine): bounded widely. What
+    # matters is that it does not grow over the flight, which it would if the recorder fell behind.
+    tenth = max(1, len(latencies_ms) // 10)
+    first, last = sorted(latencies_ms[:tenth]), sorted(latencies_ms[-tenth:])
+    assert last[len(last) // 2] < first[len(first) // 2] + 1000.0, (first, last)
+    assert sorted(latencies_ms)[len(latencies_ms) // 2] < 2000.0, latencies_ms
     log = flight.recorder_log.read_text()
     assert "Traceback" not in log and " ERROR " not in log

@@ -3,8 +3,8 @@
 
     .venv/bin/python benchmarks/capture_rates.py [--fps 5,10,20] [--capture-s 12] [--out bench-out/capture_rates]
 
-Flies the hover scenario once per rate (interval capture, started and stopped by the ground station,
-a camera with the Sony Alpha 9's 20 fps top rate, a 48 +- 2 ms shutter lag and a buffer that never
+Flies the hover scenario (open sky: its GPS outages removed) once per rate (interval capture, started
+and stopped by the ground station, a camera with the Sony Alpha 9's 20 fps top rate, a 48 +- 2 ms shutter lag and a buffer that never
 fills) through the real links (icgt.demo.fly) and prints, per rate:
 - frames recorded against true exposures (every exposure paired: the derived feedback timeout at work);
 - the recorder's CPU time (user + system of the `icgt record` process, not wall time) over the flight,
@@ -36,7 +36,11 @@ def scenario_at(fps: float, capture_s: float) -> Scenario:
         sc.camera.capture, mode="interval", interval_ms=round(1000.0 / fps), start_s=start_s, stop_s=start_s + capture_s
     )
     cam = dataclasses.replace(sc.camera, capture=cap, max_fps=20.0, shutter_latency_us=48_000, shutter_jitter_us=2_000)
-    return dataclasses.replace(sc, name=f"hover_{fps:g}fps", camera=cam, duration_s=start_s + capture_s + 3.0)
+    gps = dataclasses.replace(sc.gps, outages_s=(), denied_s=(), fix_acquired_after_s=0.0)  # open sky: no waits
+    faults = dataclasses.replace(sc.faults, manual_shots_s=(), autopilot_link_drops_s=())
+    return dataclasses.replace(
+        sc, name=f"hover_{fps:g}fps", camera=cam, gps=gps, faults=faults, duration_s=start_s + capture_s + 3.0
+    )
 
 
 def latencies_ms(flight: Flight) -> list[float]:

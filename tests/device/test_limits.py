@@ -203,3 +203,27 @@ def test_a_refused_configure_is_never_recorded_through_silently() -> None:
             configure_refused(sensors, int(code), int(detail), "device refused CONFIGURE")
     cmd = configure_command(sensors, CORE)
     assert (cmd.feedback_timeout_us, cmd.feedback_min_lag_us) == (0, 0)  # derived per capture by the device
+
+
+def test_the_ground_station_is_told_why_in_statustext() -> None:
+    from pymavlink.dialects.v20 import common as mavlink2
+
+    from icgt.recorder.capture import announce
+
+    class Link:
+        def __init__(self) -> None:
+            self.mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=100)
+            self.sent: list[Any] = []
+
+        def send(self, msg: Any) -> bool:
+            self.sent.append(msg)
+            return True
+
+    link = Link()
+    exc = LimitError(Limit.FEEDBACK_WINDOW, "interval_s 0.1: the feedback window (0.15 s) must be shorter " * 2)
+    announce(link, exc)
+    head, *chunks = link.sent
+    assert head.text == "ICGT refused: limit feedback_window" and head.id == 0
+    assert {c.id for c in chunks} == {chunks[0].id} and chunks[0].id != 0
+    assert [c.chunk_seq for c in chunks] == list(range(len(chunks)))
+    assert "".join(c.text for c in chunks) == str(exc)

@@ -4,11 +4,14 @@
 ground station, `icgt start` or the configured mode asks for. Both raise `icgt.device.limits.LimitError`
 (naming the limit) for anything the device would refuse, before anything is sent. `denied` is the
 MAVLink camera's answer to a refused request: COMMAND_ACK DENIED with the limit's number in
-result_param2 and the message as its reason. `configure_refused` says what to do when the device
+result_param2 and the message as its reason; `announce` sends the message to the ground station as
+STATUSTEXT. `configure_refused` says what to do when the device
 refuses CONFIGURE anyway (a sensor that does not answer): never go on silently with its old settings.
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import msgspec
 
@@ -18,7 +21,7 @@ from icgt.mavlink.camera import CommandResult, HandlerResult
 from icgt.protocol.messages import CaptureMode, Configure, ErrorCode, Limit, PinPolarity, StartCapture
 from icgt.recorder.config import RecorderConfig, SensorsSection
 
-__all__ = ["ConfigureRefusedError", "configure_command", "configure_refused", "denied", "start_command"]
+__all__ = ["ConfigureRefusedError", "announce", "configure_command", "configure_refused", "denied", "start_command"]
 
 
 class ConfigureRefusedError(IcgtError):
@@ -116,3 +119,20 @@ def start_command(
 def denied(exc: LimitError) -> HandlerResult:
     """A ground station's request refused for a limit: DENIED, the limit's number in result_param2."""
     return HandlerResult(CommandResult.DENIED, reason=str(exc), result_param2=int(exc.limit))
+
+
+_STATUSTEXT_BYTES = 50
+_MAV_SEVERITY_WARNING = 4
+_STATUSTEXT_IDS = iter(range(1, 1 << 62))
+
+
+def announce(link: Any, exc: LimitError) -> None:
+    """Tell the ground station why (STATUSTEXT, warning): the whole message in 50-byte chunks that a ground
+    station joins by their id (MAVLink 2), the first chunk alone naming the limit."""
+    data = str(exc).encode("utf-8")
+    msg_id = next(_STATUSTEXT_IDS) % 0xFFFF + 1
+    chunks = [data[i : i + _STATUSTEXT_BYTES] for i in range(0, len(data), _STATUSTEXT_BYTES)]
+    head = f"ICGT refused: limit {exc.limit.name.lower()}".encode()[:_STATUSTEXT_BYTES]
+    link.send(link.mav.statustext_encode(_MAV_SEVERITY_WARNING, head, 0, 0))
+    for seq, chunk in enumerate(chunks):
+        link.send(link.mav.statustext_encode(_MAV_SEVERITY_WARNING, chunk, msg_id, seq))

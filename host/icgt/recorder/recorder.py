@@ -456,6 +456,8 @@ class Recorder:
             action()
         except LimitError as exc:  # CaptureRequestError too
             log.warning("%s", exc)
+            if self.mavlink is not None:
+                capture.announce(self.mavlink, exc)
             return capture.denied(exc)
         except CommandRefusedError as exc:
             log.warning("%s", exc)

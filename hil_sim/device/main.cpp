@@ -52,7 +52,8 @@ struct Options {
                "usage: icgt-sim-device --truth FILE [--t0-monotonic-ns N] [--link pty[:PATH]|tcp:PORT]\n"
                "  [--device-offset-us X] [--device-drift-ppm Y] [--rtc-utc-s S] [--utc0-us U] [--pps]\n"
                "  [--camera-latency-us N] [--camera-jitter-us N] [--camera-exposure-us N] [--camera-miss-every N]\n"
-               "  [--camera-miss-triggers I,J,...]\n"
+               "  [--camera-miss-triggers I,J,...] [--camera-min-frame-us N] [--camera-buffer-shots N]\n"
+               "  [--camera-write-us N]\n"
                "  [--no-feedback] [--no-imu] [--no-lidar] [--lidar-model v3|v3hp] [--range-noise-cm S]\n"
                "  [--usb-frame-us N] [--usb-jitter-us N] [--seed N] [--events-out FILE] [--control PATH]\n"
                "see hil_sim/README.md\n",
@@ -96,6 +97,9 @@ Options parse(int argc, char** argv) {
     else if (a == "--camera-exposure-us") o.camera.exposure_us = static_cast<uint32_t>(number());
     else if (a == "--camera-miss-every") o.camera.miss_every = static_cast<uint32_t>(number());
     else if (a == "--camera-miss-triggers") o.camera_miss_triggers = value();
+    else if (a == "--camera-min-frame-us") o.camera.min_frame_period_us = static_cast<uint32_t>(number());
+    else if (a == "--camera-buffer-shots") o.camera.buffer_shots = static_cast<uint32_t>(number());
+    else if (a == "--camera-write-us") o.camera.write_us = static_cast<uint32_t>(number());
     else if (a == "--usb-frame-us") o.impairment.frame_us = static_cast<uint32_t>(number());
     else if (a == "--usb-jitter-us") o.impairment.jitter_us = static_cast<uint32_t>(number());
     else if (a == "--help" || a == "-h") usage("help");
@@ -133,6 +137,13 @@ std::string exposure_json(const icgt::sim::TrueExposure& e) {
   s << R"({"event":"exposure","frame_number":)" << e.frame_number << R"(,"trigger_index":)" << e.trigger_index
     << R"(,"trigger_t_us":)" << e.trigger_t_us << R"(,"start_t_us":)" << e.start_t_us << R"(,"end_t_us":)"
     << e.end_t_us << R"(,"manual":)" << (e.manual ? "true" : "false") << "}";
+  return s.str();
+}
+
+std::string ignored_json(const icgt::sim::IgnoredTrigger& t) {
+  std::ostringstream s;
+  s << R"({"event":"trigger_ignored","trigger_index":)" << t.trigger_index << R"(,"trigger_t_us":)" << t.trigger_t_us
+    << R"(,"reason":")" << icgt::sim::ignored_reason_name(t.reason) << R"("})";
   return s.str();
 }
 
@@ -247,6 +258,7 @@ int main(int argc, char** argv) {
   board.begin();
 
   std::size_t exposures_emitted = 0;
+  std::size_t ignored_emitted = 0;
   uint64_t replug_at_ns = 0;
   int64_t next_pps_utc_s = opt.utc0_us / 1'000'000 + 1;
   const auto handle = [&](const std::string& line) -> std::string {
@@ -340,6 +352,8 @@ int main(int argc, char** argv) {
 
     const auto& ex = board.camera().exposures();
     for (; exposures_emitted < ex.size(); ++exposures_emitted) events.line(exposure_json(ex[exposures_emitted]));
+    const auto& ig = board.camera().ignored();
+    for (; ignored_emitted < ig.size(); ++ignored_emitted) events.line(ignored_json(ig[ignored_emitted]));
     control.poll(handle);
     if (replug_at_ns != 0 && icgt::sim::monotonic_now_ns() >= replug_at_ns) {
       link.replug();

@@ -16,7 +16,18 @@ void CameraModel::on_shutter_line(bool level, uint64_t t_us) {
   ++triggers_seen_;
   const bool forced = std::find(forced_misses_.begin(), forced_misses_.end(), triggers_seen_) != forced_misses_.end();
   if (forced || (cfg_.miss_every != 0 && triggers_seen_ % cfg_.miss_every == 0)) {
-    ++triggers_missed_;
+    ignore(triggers_seen_, t_us, IgnoredReason::forced);
+    return;
+  }
+  // The body's top frame rate, judged on the exposure start the press asks for (without jitter).
+  const uint64_t nominal_start_t_us = t_us + cfg_.latency_us;
+  if (cfg_.min_frame_period_us != 0 && exposed_ &&
+      nominal_start_t_us < last_nominal_start_t_us_ + cfg_.min_frame_period_us) {
+    ignore(triggers_seen_, t_us, IgnoredReason::too_soon);
+    return;
+  }
+  if (cfg_.buffer_shots != 0 && buffered_at(t_us) >= cfg_.buffer_shots) {
+    ignore(triggers_seen_, t_us, IgnoredReason::buffer_full);
     return;
   }
   int64_t jitter = 0;
@@ -26,10 +37,40 @@ void CameraModel::on_shutter_line(bool level, uint64_t t_us) {
     jitter = d(rng_);
   }
   const int64_t latency = std::max<int64_t>(0, static_cast<int64_t>(cfg_.latency_us) + jitter);
+  exposed_ = true;
+  last_nominal_start_t_us_ = nominal_start_t_us;
   expose(t_us, t_us + static_cast<uint64_t>(latency), false, triggers_seen_);
 }
 
 void CameraModel::manual_shot(uint64_t t_us) { expose(0, t_us, true, 0); }
+
+const char* ignored_reason_name(IgnoredReason r) {
+  switch (r) {
+    case IgnoredReason::forced: return "forced";
+    case IgnoredReason::buffer_full: return "buffer_full";
+    case IgnoredReason::too_soon: return "too_soon";
+  }
+  return "unknown";
+}
+
+void CameraModel::ignore(uint32_t trigger_index, uint64_t t_us, IgnoredReason reason) {
+  ++triggers_missed_;
+  ignored_.push_back({trigger_index, t_us, reason});
+}
+
+void CameraModel::drain(uint64_t t_us) {
+  // One frame at a time goes to the card, each taking write_us; writing starts as soon as a
+  // frame is buffered.
+  while (buffered_ > 0 && write_done_t_us_ <= t_us) {
+    --buffered_;
+    if (buffered_ > 0) write_done_t_us_ += cfg_.write_us;
+  }
+}
+
+uint32_t CameraModel::buffered_at(uint64_t t_us) {
+  drain(t_us);
+  return buffered_;
+}
 
 void CameraModel::expose(uint64_t trigger_t_us, uint64_t start_t_us, bool manual, uint32_t trigger_index) {
   TrueExposure e;
@@ -40,6 +81,11 @@ void CameraModel::expose(uint64_t trigger_t_us, uint64_t start_t_us, bool manual
   e.end_t_us = start_t_us + cfg_.exposure_us;
   e.manual = manual;
   exposures_.push_back(e);
+  if (cfg_.buffer_shots != 0) {
+    drain(start_t_us);
+    if (buffered_ == 0) write_done_t_us_ = e.end_t_us + cfg_.write_us;
+    ++buffered_;
+  }
   const bool active = cfg_.feedback_active_high;
   pending_.push_back({e.start_t_us, active});
   pending_.push_back({e.end_t_us, !active});

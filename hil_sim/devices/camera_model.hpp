@@ -1,6 +1,15 @@
 // A camera on the trigger cable and the hot shoe: it answers a shutter pulse with an
 // exposure after a latency, signals the exposure on its flash-sync contact (the feedback
 // line), can miss shots and can be fired by hand (a shot with no trigger).
+//
+// Fast bursts behave as real bodies do: the shutter lag may be longer than the interval (the
+// exposure starts after the next trigger fired); a press sooner than min_frame_period_us after
+// the last exposure started is ignored (the body's top frame rate); every shot goes into a
+// buffer of buffer_shots frames that the card empties at one frame per write_us, and a press
+// while the buffer is full is ignored until a frame has been written. Typical numbers (Sony
+// Alpha 9, Sony's ILCE-9 specifications): 20 fps at most (electronic shutter), a buffer of
+// about 362 JPEG or 241 compressed RAW frames; shutter lag of mirrorless bodies ~25-50 ms
+// (Wikipedia, "Shutter lag"). Every ignored press is recorded with its reason.
 #pragma once
 
 #include <cstdint>
@@ -17,6 +26,9 @@ struct CameraModelConfig {
   bool feedback_active_high = false;  // hot-shoe contacts pull the line low
   bool shutter_active_high = true;    // polarity the camera expects on its trigger input
   uint32_t miss_every = 0;            // every Nth trigger is ignored (0 = never)
+  uint32_t min_frame_period_us = 0;   // top frame rate: 50'000 = 20 fps (0 = no limit)
+  uint32_t buffer_shots = 0;          // frames the buffer holds (0 = unlimited)
+  uint32_t write_us = 0;              // card write time per frame (buffer drain)
   uint64_t seed = 7;
 };
 
@@ -29,6 +41,17 @@ struct TrueExposure {
   uint64_t end_t_us = 0;
   bool manual = false;
 };
+
+enum class IgnoredReason : uint8_t { forced, buffer_full, too_soon };
+
+// A trigger pulse the camera did not answer.
+struct IgnoredTrigger {
+  uint32_t trigger_index = 0;
+  uint64_t trigger_t_us = 0;
+  IgnoredReason reason = IgnoredReason::forced;
+};
+
+[[nodiscard]] const char* ignored_reason_name(IgnoredReason r);
 
 class CameraModel {
  public:
@@ -54,6 +77,9 @@ class CameraModel {
   [[nodiscard]] const std::vector<TrueExposure>& exposures() const { return exposures_; }
   [[nodiscard]] uint32_t triggers_seen() const { return triggers_seen_; }
   [[nodiscard]] uint32_t triggers_missed() const { return triggers_missed_; }
+  [[nodiscard]] const std::vector<IgnoredTrigger>& ignored() const { return ignored_; }
+  // Frames in the buffer at t_us (not yet written to the card).
+  [[nodiscard]] uint32_t buffered_at(uint64_t t_us);
 
  private:
   struct Edge {
@@ -61,6 +87,8 @@ class CameraModel {
     bool level;
   };
   void expose(uint64_t trigger_t_us, uint64_t start_t_us, bool manual, uint32_t trigger_index);
+  void ignore(uint32_t trigger_index, uint64_t t_us, IgnoredReason reason);
+  void drain(uint64_t t_us);
 
   CameraModelConfig cfg_;
   std::mt19937_64 rng_;
@@ -72,6 +100,11 @@ class CameraModel {
   std::vector<uint32_t> forced_misses_;
   std::vector<Edge> pending_;  // sorted by time
   std::vector<TrueExposure> exposures_;
+  std::vector<IgnoredTrigger> ignored_;
+  bool exposed_ = false;  // a triggered exposure happened (the frame-rate limit applies)
+  uint64_t last_nominal_start_t_us_ = 0;
+  uint32_t buffered_ = 0;
+  uint64_t write_done_t_us_ = 0;  // the frame being written is on the card then
 };
 
 }  // namespace icgt::sim

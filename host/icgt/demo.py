@@ -28,7 +28,7 @@ from pymavlink import mavutil
 
 from icgt.errors import IcgtError
 from icgt.sim.evaluate import evaluate, read_frames, read_truth
-from icgt.sim.scenario import Scenario, load_scenario
+from icgt.sim.scenario import Camera, Scenario, load_scenario
 from icgt.sim.session import SimSession
 
 GCS_SYSTEM = 255
@@ -41,6 +41,11 @@ def free_udp_port() -> int:
         s.bind(("127.0.0.1", 0))
         port: int = s.getsockname()[1]
         return port
+
+
+def feedback_min_lag_s(cam: Camera) -> float:
+    """The shortest shutter lag a crew would configure for this body: its lag less twice its jitter and 5 ms."""
+    return max(0.0, (cam.shutter_latency_us - 2 * cam.shutter_jitter_us - 5_000) / 1e6)
 
 
 def recorder_config_text(
@@ -72,6 +77,7 @@ burst_s = {cap.burst_ms / 1000.0}
 shutter_pulse_s = 0.02
 
 [sensors]
+feedback_min_lag_s = {feedback_min_lag_s(cam)}
 imu_rate_hz = {int(sen.imu_rate_hz)}
 range_rate_hz = {int(sen.range_rate_hz)}
 lidar_model = "{sen.lidar_model}"
@@ -229,7 +235,7 @@ def fly(sc: Scenario, out_dir: Path, record_args: Sequence[str] = ()) -> Flight:
         gcs.pump(max(0.2, cap.start_s - session.tau_s))
         interval_s = cap.interval_ms / 1000.0 if cap.mode == "interval" else 1.0 / cap.burst_fps
         print(f"ground station: start capture at tau {session.tau_s:.1f} s", flush=True)
-        gcs.command_acked(mavutil.mavlink.MAV_CMD_IMAGE_START_CAPTURE, 0, interval_s, 0, 0)
+        gcs.command_acked(mavutil.mavlink.MAV_CMD_IMAGE_START_CAPTURE, 0, interval_s, cap.count, 0)
         stop_at = cap.stop_s if cap.stop_s is not None else sc.duration_s - 2.0
         gcs.pump(max(0.0, stop_at - session.tau_s))
         print(f"ground station: stop capture at tau {session.tau_s:.1f} s", flush=True)

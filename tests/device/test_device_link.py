@@ -419,7 +419,12 @@ def test_command_is_acknowledged_with_its_own_seq(host, device):
 
 @pytest.mark.parametrize(
     ("code", "detail", "text"),
-    [(ErrorCode.SENSOR_MISSING, 7, "sensor_missing (detail 7)"), (200, 1, "error 200 (detail 1)")],
+    [
+        (ErrorCode.SENSOR_MISSING, 18, "sensor_missing: the BNO055 does not answer (limit imu_missing)"),
+        (ErrorCode.OUT_OF_RANGE, 3, "out_of_range: limit interval (0.05 .. 3600 s)"),
+        (ErrorCode.OUT_OF_RANGE, 999, "out_of_range (detail 999)"),
+        (200, 0, "error 200"),
+    ],
 )
 def test_a_refused_command_raises_with_the_code_name(host, device, code, detail, text):
     device.refuse["START_CAPTURE"] = (int(code), detail)

@@ -42,6 +42,8 @@ BAD: list[tuple[str, str, object]] = [
     ("sensors", "feedback", 1),
     ("sensors", "feedback_timeout_s", 0.0),
     ("sensors", "feedback_timeout_s", 5.0),
+    ("sensors", "feedback_min_lag_s", -0.01),
+    ("sensors", "feedback_min_lag_s", 1.5),
     ("sensors", "feedback_active_high", "no"),
     ("camera", "focal_length_mm", 0),
     ("camera", "sensor_width_mm", -1.0),
@@ -105,7 +107,7 @@ def test_values_against_each_other() -> None:
         parse_config({"capture": {"mode": "focus_burst", "interval_s": 0.5, "burst_s": 0.2}}, "f")
     with pytest.raises(ConfigError, match="range_min_m"):
         parse_config({"camera": {"range_min_m": 10.0, "range_max_m": 5.0}}, "f")
-    with pytest.raises(ConfigError, match="presets 0-5"):
+    with pytest.raises(ConfigError, match=r"presets 0 \.\. 5 \(limit lidar_preset\)"):
         parse_config({"sensors": {"lidar_model": "v3", "lidar_preset": 6}}, "f")
 
 

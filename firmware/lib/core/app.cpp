@@ -24,12 +24,21 @@ LidarLiteConfig lidar_config(const DeviceConfig& c) {
   return l;
 }
 
-FeedbackConfig feedback_config(const DeviceConfig& c, bool wired) {
+// interval_us 0: no capture (or a single shot) to derive an automatic timeout from.
+FeedbackConfig feedback_config(const DeviceConfig& c, bool wired, uint32_t interval_us = 0) {
   FeedbackConfig f;
   f.enabled = c.feedback_enabled && wired;
   f.active_high = (c.polarity & proto::PinPolarity::feedback_active_high) != 0;
-  f.timeout_us = c.feedback_timeout_us;
+  f.min_lag_us = c.feedback_min_lag_us;
+  f.timeout_us = c.feedback_timeout_us != 0
+                     ? c.feedback_timeout_us
+                     : limits::auto_feedback_timeout_us(c.feedback_min_lag_us, interval_us, interval_us == 0);
   return f;
+}
+
+ErrorCode refuse(proto::Limit& limit, proto::Limit which, ErrorCode code = ErrorCode::out_of_range) {
+  limit = which;
+  return code;
 }
 
 LinePolarity line_polarity(uint8_t polarity) {
@@ -178,20 +187,28 @@ void App::on_frame(uint64_t rx_t_us) {
   switch (static_cast<proto::MsgId>(rx_.header().type)) {
     case proto::MsgId::START_CAPTURE: {
       proto::StartCapture cmd;
-      if (rx_.decode(cmd)) ack(start_capture(cmd, rx_t_us));
+      proto::Limit limit = proto::Limit::none;
+      if (rx_.decode(cmd)) {
+        const ErrorCode r = start_capture(cmd, rx_t_us, limit);
+        ack(r, static_cast<uint32_t>(limit));
+      }
       return;
     }
     case proto::MsgId::STOP_CAPTURE: {
       proto::StopCapture cmd;
       if (!rx_.decode(cmd)) return;
       const TriggerResult r = cmd.camera_id != 0 ? TriggerResult::out_of_range : trigger_.stop();
-      ack(static_cast<ErrorCode>(r));
+      ack(static_cast<ErrorCode>(r), cmd.camera_id != 0 ? static_cast<uint32_t>(proto::Limit::camera_id) : 0);
       if (r == TriggerResult::ok) log(rx_t_us, proto::LogLevel::info, "capture stopped by host");
       return;
     }
     case proto::MsgId::CONFIGURE: {
       proto::Configure cmd;
-      if (rx_.decode(cmd)) ack(configure(cmd));
+      proto::Limit limit = proto::Limit::none;
+      if (rx_.decode(cmd)) {
+        const ErrorCode r = configure(cmd, limit);
+        ack(r, static_cast<uint32_t>(limit));
+      }
       return;
     }
     case proto::MsgId::TIME_SYNC: {
@@ -227,8 +244,10 @@ void App::on_frame(uint64_t rx_t_us) {
   }
 }
 
-ErrorCode App::start_capture(const proto::StartCapture& cmd, uint64_t now_us) {
-  if (cmd.camera_id != 0) return ErrorCode::out_of_range;  // one camera port on every board so far
+ErrorCode App::start_capture(const proto::StartCapture& cmd, uint64_t now_us, proto::Limit& limit) {
+  limit = proto::Limit::none;
+  if (trigger_.state() == CaptureState::capturing) return ErrorCode::busy_capturing;
+  if (cmd.camera_id != 0) return refuse(limit, proto::Limit::camera_id);  // one camera port on every board so far
   CaptureParams p;
   p.mode = static_cast<CaptureMode>(cmd.mode);
   p.camera_id = cmd.camera_id;
@@ -237,18 +256,24 @@ ErrorCode App::start_capture(const proto::StartCapture& cmd, uint64_t now_us) {
   p.focus_lead_us = cmd.focus_lead_us;
   p.burst_us = cmd.burst_us;
   p.shutter_pulse_us = cmd.shutter_pulse_us;
-  // Pairing is first-in-first-out: it is only unambiguous while feedback must arrive before
-  // the next shot. A longer timeout would let one missed exposure shift every later pair.
-  if (pairing_.feedback_enabled() && cmd.mode != static_cast<uint8_t>(CaptureMode::single) &&
-      pairing_.config().timeout_us >= cmd.interval_us) {
-    return ErrorCode::out_of_range;
+  const proto::Limit broken = Trigger::check(p);
+  if (broken != proto::Limit::none) return refuse(limit, broken);
+  // Pairing is first-in-first-out: it is only unambiguous while the window a feedback edge may
+  // arrive in (min lag .. timeout after its trigger) is shorter than the interval. A longer one
+  // would let one missed exposure shift every later pair.
+  const bool single = p.mode == CaptureMode::single;
+  const FeedbackConfig fb = feedback_config(config_, ports_.feedback != nullptr, single ? 0 : p.interval_us);
+  if (fb.enabled && (fb.timeout_us <= fb.min_lag_us || (!single && fb.timeout_us - fb.min_lag_us >= p.interval_us))) {
+    return refuse(limit, proto::Limit::feedback_window);
   }
+  if (pairing_.configure(fb) != FeedbackResult::ok) return refuse(limit, proto::Limit::feedback_timeout);
   const TriggerResult r = trigger_.start(p, now_us);
   if (r == TriggerResult::ok) log(now_us, proto::LogLevel::info, "capture started, mode ", cmd.mode, true);
   return static_cast<ErrorCode>(r);
 }
 
-ErrorCode App::configure(const proto::Configure& cmd) {
+ErrorCode App::configure(const proto::Configure& cmd, proto::Limit& limit) {
+  limit = proto::Limit::none;
   if (trigger_.state() == CaptureState::capturing) return ErrorCode::busy_capturing;
   DeviceConfig next;
   next.imu_rate_hz = cmd.imu_rate_hz;
@@ -261,27 +286,44 @@ ErrorCode App::configure(const proto::Configure& cmd) {
   next.polarity = cmd.polarity;
   next.feedback_enabled = cmd.feedback_enabled != 0;
   next.feedback_timeout_us = cmd.feedback_timeout_us;
+  next.feedback_min_lag_us = cmd.feedback_min_lag_us;
 
   // Validate everything before touching anything: a refused CONFIGURE changes nothing.
   const bool want_imu = next.imu_rate_hz != 0;
   const bool want_lidar = next.range_rate_hz != 0 && next.lidar_model != proto::LidarModel::none;
-  if (cmd.imu_ext_crystal > 1 || cmd.feedback_enabled > 1) return ErrorCode::out_of_range;
+  if (cmd.imu_ext_crystal > 1 || cmd.feedback_enabled > 1) return refuse(limit, proto::Limit::flag_value);
   if (next.lidar_model != proto::LidarModel::none && next.lidar_model != proto::LidarModel::v3 &&
       next.lidar_model != proto::LidarModel::v3hp) {
-    return ErrorCode::out_of_range;
+    return refuse(limit, proto::Limit::lidar_model);
   }
-  if (want_imu && !Bno055::valid(imu_config(next))) return ErrorCode::out_of_range;
-  if (want_lidar && !LidarLite::valid(lidar_config(next))) return ErrorCode::out_of_range;
-  if (next.feedback_timeout_us < ExposurePairing::kMinTimeoutUs ||
-      next.feedback_timeout_us > ExposurePairing::kMaxTimeoutUs) {
-    return ErrorCode::out_of_range;
+  if (want_imu && !Bno055::valid(imu_config(next))) {
+    return refuse(limit, next.imu_rate_hz > limits::kImuMaxRateHz ? proto::Limit::imu_rate : proto::Limit::imu_mode);
   }
-  if (next.feedback_enabled && ports_.feedback == nullptr) return ErrorCode::sensor_missing;
-  if (want_imu && imu_.state() == Bno055State::absent) return ErrorCode::sensor_missing;
-  if (want_lidar && lidar_.state() == LidarState::absent) return ErrorCode::sensor_missing;
+  if (want_lidar && !LidarLite::valid(lidar_config(next))) {
+    if (next.range_rate_hz > limits::kLidarMaxRateHz) return refuse(limit, proto::Limit::range_rate);
+    return refuse(limit, next.lidar_bias_every == 0 ? proto::Limit::lidar_bias_every : proto::Limit::lidar_preset);
+  }
+  if (next.feedback_timeout_us != 0 && (next.feedback_timeout_us < ExposurePairing::kMinTimeoutUs ||
+                                        next.feedback_timeout_us > ExposurePairing::kMaxTimeoutUs)) {
+    return refuse(limit, proto::Limit::feedback_timeout);
+  }
+  if (next.feedback_min_lag_us > ExposurePairing::kMaxMinLagUs ||
+      (next.feedback_timeout_us != 0 && next.feedback_min_lag_us >= next.feedback_timeout_us)) {
+    return refuse(limit, proto::Limit::feedback_min_lag);
+  }
+  if (next.feedback_enabled && ports_.feedback == nullptr) {
+    return refuse(limit, proto::Limit::feedback_line_missing, ErrorCode::sensor_missing);
+  }
+  if (want_imu && imu_.state() == Bno055State::absent) {
+    return refuse(limit, proto::Limit::imu_missing, ErrorCode::sensor_missing);
+  }
+  if (want_lidar && lidar_.state() == LidarState::absent) {
+    return refuse(limit, proto::Limit::lidar_missing, ErrorCode::sensor_missing);
+  }
 
   if (pairing_.configure(feedback_config(next, ports_.feedback != nullptr)) != FeedbackResult::ok) {
-    return ErrorCode::sensor_missing;  // the line exists but cannot interrupt: nothing changed yet
+    // the line exists but cannot interrupt: nothing changed yet
+    return refuse(limit, proto::Limit::feedback_line_missing, ErrorCode::sensor_missing);
   }
   (void)trigger_.set_polarity(line_polarity(next.polarity));  // cannot fail: not capturing
   if (ports_.pps != nullptr) timebase_.set_pps_rising((next.polarity & proto::PinPolarity::pps_rising) != 0);

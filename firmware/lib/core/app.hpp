@@ -54,7 +54,8 @@ struct DeviceConfig {
   uint8_t polarity = proto::PinPolarity::focus_active_high | proto::PinPolarity::shutter_active_high |
                      proto::PinPolarity::pps_rising;  // feedback active low: hot shoes pull down
   bool feedback_enabled = true;                        // when the board wires the line
-  uint32_t feedback_timeout_us = 150'000;  // below the 200 ms of 5 fps: see App::start_capture
+  uint32_t feedback_timeout_us = 0;  // 0 = derived from the interval at each capture (limits.hpp)
+  uint32_t feedback_min_lag_us = 0;  // the camera's shortest shutter lag
 };
 
 class App {
@@ -103,8 +104,9 @@ class App {
   void on_frame(uint64_t rx_t_us);
   void on_rejected_frame();
   void ack(proto::ErrorCode code, uint32_t detail = 0);
-  [[nodiscard]] proto::ErrorCode start_capture(const proto::StartCapture& cmd, uint64_t now_us);
-  [[nodiscard]] proto::ErrorCode configure(const proto::Configure& cmd);
+  // Both set `limit` to the limit a refusal broke (ACK.detail), none otherwise.
+  [[nodiscard]] proto::ErrorCode start_capture(const proto::StartCapture& cmd, uint64_t now_us, proto::Limit& limit);
+  [[nodiscard]] proto::ErrorCode configure(const proto::Configure& cmd, proto::Limit& limit);
   void step_sensors(uint64_t now_us);
   [[nodiscard]] bool i2c_credit_left(uint64_t now_us);
   void spend_i2c(uint64_t from_us);

@@ -2,6 +2,8 @@
 
 #include <cstddef>
 
+#include "core/limits.hpp"
+
 namespace icgt::core {
 
 namespace {
@@ -18,8 +20,8 @@ constexpr uint8_t kRegSysTrigger = 0x3F;
 constexpr uint8_t kChipId = 0xA0;
 constexpr uint8_t kModeConfig = 0x00;
 constexpr uint8_t kModeMask = 0x0F;  // OPR_MODE has a reserved bit set at power-up (reads 0x10)
-constexpr uint8_t kModeFirstFusion = 0x08;
-constexpr uint8_t kModeLastFusion = 0x0C;
+constexpr uint8_t kModeFirstFusion = limits::kImuFirstFusionMode;
+constexpr uint8_t kModeLastFusion = limits::kImuLastFusionMode;
 constexpr uint8_t kPwrModeNormal = 0x00;
 constexpr uint8_t kSysTriggerRstSys = 0x20;
 constexpr uint8_t kSysTriggerClkSel = 0x80;
@@ -45,7 +47,7 @@ constexpr uint64_t kRegisterSettleUs = 10'000;
 constexpr uint64_t kBackoffMinUs = 100'000;
 constexpr uint64_t kBackoffMaxUs = 5'000'000;
 
-constexpr uint16_t kMaxRateHz = 100;
+constexpr uint16_t kMaxRateHz = limits::kImuMaxRateHz;
 constexpr float kPi = 3.14159265358979F;
 constexpr float kQuatPerLsb = 1.0F / 16384.0F;
 constexpr float kRadSPerLsbDps = kPi / (180.0F * 16.0F);

@@ -23,7 +23,8 @@ ExposurePairing::~ExposurePairing() {
 }
 
 FeedbackResult ExposurePairing::configure(const FeedbackConfig& config) {
-  if (config.timeout_us < kMinTimeoutUs || config.timeout_us > kMaxTimeoutUs || config.end_timeout_us == 0) {
+  if (config.timeout_us < kMinTimeoutUs || config.timeout_us > kMaxTimeoutUs || config.end_timeout_us == 0 ||
+      config.min_lag_us > kMaxMinLagUs || config.min_lag_us >= config.timeout_us) {
     return FeedbackResult::out_of_range;
   }
   if (config.enabled) {
@@ -144,7 +145,7 @@ std::size_t ExposurePairing::poll(uint64_t now_us, Exposure* out, std::size_t ou
         open_ = false;
         continue;
       }
-      if (pending_count_ > 0 && pending_front().trigger_t_us <= edge_.t_us) {
+      if (pending_count_ > 0 && pending_front().trigger_t_us + config_.min_lag_us <= edge_.t_us) {
         open_trigger_ = pending_front();
         open_solicited_ = true;
         pending_pop();

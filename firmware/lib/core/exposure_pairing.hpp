@@ -5,8 +5,10 @@
 //
 // Rules, applied in device-time order:
 //  - An active edge (level == active level) starts an exposure. It belongs to the oldest
-//    pending trigger fired at or before it; with none, it is a manual shot: emitted with
-//    `unsolicited` and image_index 0.
+//    pending trigger fired at least min_lag_us (the camera's shortest shutter lag) before it;
+//    with none, it is a manual shot: emitted with `unsolicited` and image_index 0. With a
+//    shutter lag longer than the interval the edge arrives after the next trigger fired: it
+//    still goes to the oldest.
 //  - The next inactive edge ends it: emitted with start, end and duration_us = end - start.
 //    An inactive edge with no exposure open (line already active at attach, a lost start
 //    edge) is ignored and counted in stray_edges().
@@ -18,9 +20,11 @@
 // Mid-exposure is start + duration_us / 2; the host computes it (the device sends raw edges
 // so the host can apply a camera-specific model instead).
 //
-// Pairing is FIFO: it is unambiguous while timeout_us < interval_us (at most one trigger
-// waits at a time). With a longer timeout, one missed feedback would shift the pairing of
-// following shots until the next gap; the application should keep timeout below interval.
+// Pairing is FIFO: it is unambiguous while the window an edge may arrive in,
+// [trigger + min_lag_us, trigger + timeout_us], is shorter than the interval: then a trigger
+// the camera ignored has timed out before the next one's edge can arrive. With a longer
+// window one missed exposure would shift the pairing of following shots until the next gap;
+// the application refuses such captures (limits.hpp, App::start_capture).
 //
 // Deadlines are judged against the next feedback edge or, once the edge queue is empty,
 // against now_us, never against the loop's arrival time alone: a late poll() does not turn
@@ -30,6 +34,7 @@
 #include <cstddef>
 #include <cstdint>
 
+#include "core/limits.hpp"
 #include "core/spsc_queue.hpp"
 #include "core/trigger.hpp"
 #include "hal/hal.hpp"
@@ -71,14 +76,16 @@ enum class FeedbackResult : uint8_t { ok = 0, out_of_range = 3, not_supported = 
 struct FeedbackConfig {
   bool enabled = false;      // CONFIGURE.feedback_enabled
   bool active_high = false;  // PinPolarity feedback_active_high; hot shoes usually pull low
-  uint32_t timeout_us = 200'000;        // CONFIGURE.feedback_timeout_us, 1 ms .. 2 s
+  uint32_t timeout_us = 200'000;        // CONFIGURE.feedback_timeout_us (or derived), 1 ms .. 2 s
+  uint32_t min_lag_us = 0;              // CONFIGURE.feedback_min_lag_us, 0 .. 1 s, < timeout_us
   uint32_t end_timeout_us = 1'000'000;  // longest exposure expected (not on the wire yet)
 };
 
 class ExposurePairing {
  public:
-  static constexpr uint32_t kMinTimeoutUs = 1'000;
-  static constexpr uint32_t kMaxTimeoutUs = 2'000'000;
+  static constexpr uint32_t kMinTimeoutUs = limits::kMinFeedbackTimeoutUs;
+  static constexpr uint32_t kMaxTimeoutUs = limits::kMaxFeedbackTimeoutUs;
+  static constexpr uint32_t kMaxMinLagUs = limits::kMaxFeedbackMinLagUs;
   // Triggers waiting for their start edge: 2 s of timeout at 20 shots/s fits.
   static constexpr std::size_t kPendingCapacity = 48;
 
@@ -89,7 +96,7 @@ class ExposurePairing {
   ExposurePairing& operator=(const ExposurePairing&) = delete;
 
   // Applies CONFIGURE. Refused (changing nothing) with out_of_range for a timeout outside
-  // 1 ms .. 2 s or an end timeout of 0, not_supported when enabled but the line is missing
+  // 1 ms .. 2 s, a min lag above 1 s or not below the timeout, or an end timeout of 0, not_supported when enabled but the line is missing
   // or cannot interrupt. Disabling detaches the line; triggers still waiting are then
   // emitted with no_feedback_line and an open exposure with end_missing.
   [[nodiscard]] FeedbackResult configure(const FeedbackConfig& config);

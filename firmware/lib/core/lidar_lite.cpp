@@ -30,18 +30,20 @@ constexpr uint8_t kMaxBackoffShift = 6;  // 20 ms << 6 > 1 s: the cap takes over
 
 // Garmin configure(cfg) tables (sensors.md §2.1 and §2.3), in the vendor's write order.
 constexpr uint8_t kV3Regs[3] = {0x02, 0x04, 0x1C};
-constexpr uint8_t kV3Presets[6][3] = {
+constexpr uint8_t kV3Presets[limits::kLidarV3Presets][3] = {
     {0x80, 0x08, 0x00}, {0x1D, 0x08, 0x00}, {0x80, 0x00, 0x00},
     {0xFF, 0x08, 0x00}, {0x80, 0x08, 0x80}, {0x80, 0x08, 0xB0},
 };
 constexpr uint8_t kV3hpRegs[4] = {0x02, 0x04, 0x12, 0x1C};
-constexpr uint8_t kV3hpPresets[7][4] = {
+constexpr uint8_t kV3hpPresets[limits::kLidarV3hpPresets][4] = {
     {0x80, 0x08, 0x05, 0x00}, {0x1D, 0x08, 0x03, 0x00}, {0x80, 0x00, 0x03, 0x00}, {0xFF, 0x08, 0x05, 0x00},
     {0x80, 0x08, 0x05, 0x80}, {0x80, 0x08, 0x05, 0xB0}, {0x04, 0x01, 0x03, 0x00},
 };
 
 constexpr bool is_v3hp(const LidarLiteConfig& c) { return c.model == LidarModelKind::v3hp; }
-constexpr uint8_t preset_count(const LidarLiteConfig& c) { return is_v3hp(c) ? 7 : 6; }
+constexpr uint8_t preset_count(const LidarLiteConfig& c) {
+  return is_v3hp(c) ? limits::kLidarV3hpPresets : limits::kLidarV3Presets;
+}
 constexpr uint8_t preset_len(const LidarLiteConfig& c) { return is_v3hp(c) ? 4 : 3; }
 
 // Garmin's figures at SIG_COUNT_VAL 0x80 (v3 manual: 270 Hz typical; v3HP manual: > 1 kHz),

@@ -35,6 +35,7 @@
 
 #include <cstdint>
 
+#include "core/limits.hpp"
 #include "hal/hal.hpp"
 
 namespace icgt::core {
@@ -89,7 +90,7 @@ class LidarLite {
   static constexpr uint32_t kResetDeadline_us = 100'000;
   static constexpr uint32_t kBackoffMin_us = 20'000;
   static constexpr uint32_t kBackoffMax_us = 1'000'000;
-  static constexpr uint16_t kMaxRate_hz = 500;
+  static constexpr uint16_t kMaxRate_hz = limits::kLidarMaxRateHz;
 
   // An invalid config leaves the driver disabled until reconfigure() succeeds.
   LidarLite(hal::I2cBus& bus, const hal::Clock& clock, const LidarLiteConfig& config);

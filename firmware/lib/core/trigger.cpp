@@ -41,30 +41,34 @@ Trigger::~Trigger() {
   alarm_.set_handler(nullptr, nullptr);
 }
 
-TriggerResult Trigger::validate(const CaptureParams& p) {
+proto::Limit Trigger::check(const CaptureParams& p) {
   bool uses_interval = true;
   switch (p.mode) {
     case CaptureMode::interval:
       break;
     case CaptureMode::focus_burst:
-      if (p.burst_us < p.interval_us) return TriggerResult::out_of_range;
+      if (p.burst_us < p.interval_us) return proto::Limit::burst;
       break;
     case CaptureMode::single:
       uses_interval = false;
       break;
     case CaptureMode::count:
-      if (p.count < 1) return TriggerResult::out_of_range;
+      if (p.count < 1) return proto::Limit::count;
       break;
     default:
-      return TriggerResult::out_of_range;  // an unknown value cast from the wire
+      return proto::Limit::capture_mode;  // an unknown value cast from the wire
   }
-  if (p.shutter_pulse_us < kMinPulseUs || p.shutter_pulse_us > kMaxPulseUs) return TriggerResult::out_of_range;
+  if (p.shutter_pulse_us < kMinPulseUs || p.shutter_pulse_us > kMaxPulseUs) return proto::Limit::shutter_pulse;
   if (uses_interval) {
-    if (p.interval_us < kMinIntervalUs || p.interval_us > kMaxIntervalUs) return TriggerResult::out_of_range;
+    if (p.interval_us < kMinIntervalUs || p.interval_us > kMaxIntervalUs) return proto::Limit::interval;
     // The line must go inactive between shots or the camera sees one long press.
-    if (p.shutter_pulse_us >= p.interval_us) return TriggerResult::out_of_range;
+    if (p.shutter_pulse_us >= p.interval_us) return proto::Limit::pulse_vs_interval;
   }
-  return TriggerResult::ok;
+  return proto::Limit::none;
+}
+
+TriggerResult Trigger::validate(const CaptureParams& p) {
+  return check(p) == proto::Limit::none ? TriggerResult::ok : TriggerResult::out_of_range;
 }
 
 TriggerResult Trigger::start(const CaptureParams& params, uint64_t now_us) {

@@ -30,8 +30,10 @@
 #include <cstddef>
 #include <cstdint>
 
+#include "core/limits.hpp"
 #include "core/spsc_queue.hpp"
 #include "hal/hal.hpp"
+#include "protocol/messages.hpp"
 
 namespace icgt::core {
 
@@ -77,10 +79,10 @@ using TriggerQueue = SpscQueue<TriggerRecord, kTriggerQueueCapacity>;
 
 class Trigger {
  public:
-  static constexpr uint32_t kMinIntervalUs = 50'000;
-  static constexpr uint32_t kMaxIntervalUs = 3'600'000'000u;
-  static constexpr uint32_t kMinPulseUs = 1'000;
-  static constexpr uint32_t kMaxPulseUs = 1'000'000;
+  static constexpr uint32_t kMinIntervalUs = limits::kMinIntervalUs;
+  static constexpr uint32_t kMaxIntervalUs = limits::kMaxIntervalUs;
+  static constexpr uint32_t kMinPulseUs = limits::kMinPulseUs;
+  static constexpr uint32_t kMaxPulseUs = limits::kMaxPulseUs;
 
   // Takes the alarm's handler. Writes both lines to their inactive level. All references
   // must outlive the Trigger.
@@ -94,6 +96,8 @@ class Trigger {
   // pulse 1 ms .. 1 s and < interval where used, count >= 1 for count, burst >= interval for
   // focus_burst, a known mode). Pure: changes nothing.
   [[nodiscard]] static TriggerResult validate(const CaptureParams& params);
+  // The limit params break (proto::Limit::none when valid), for ACK.detail.
+  [[nodiscard]] static proto::Limit check(const CaptureParams& params);
 
   // Starts a capture whose grid begins at now_us (focus asserted at now_us, first shot at
   // now_us + focus_lead_us). Refused (changing nothing) with busy_capturing while a capture

@@ -11,7 +11,7 @@
 namespace icgt::proto {
 
 inline constexpr uint8_t kProtocolVersion = 1;
-inline constexpr uint32_t kTableHash = 0x2AFC2D30u;
+inline constexpr uint32_t kTableHash = 0xD0136D18u;
 inline constexpr std::size_t kMaxFrameBytes = 256;
 inline constexpr std::size_t kHeaderBytes = 8;
 inline constexpr std::size_t kCrcBytes = 4;
@@ -73,7 +73,7 @@ enum class MsgId : uint8_t {
     case 0x09: min_bytes = 9; max_bytes = 209; return true;
     case 0x40: min_bytes = 22; max_bytes = 22; return true;
     case 0x41: min_bytes = 1; max_bytes = 1; return true;
-    case 0x42: min_bytes = 16; max_bytes = 16; return true;
+    case 0x42: min_bytes = 20; max_bytes = 20; return true;
     case 0x43: min_bytes = 8; max_bytes = 8; return true;
     case 0x44: min_bytes = 8; max_bytes = 8; return true;
     case 0x45: min_bytes = 4; max_bytes = 4; return true;
@@ -135,6 +135,31 @@ enum class ErrorCode : uint8_t {
   not_supported = 7,
   invalid_time = 8,
   internal = 9,
+};
+
+// Which limit a refused command broke: ACK.detail of an out_of_range or sensor_missing answer (0 = not said). host/icgt/device/limits.py states each limit's value per board.
+enum class Limit : uint8_t {
+  none = 0,
+  camera_id = 1,
+  capture_mode = 2,
+  interval = 3,
+  shutter_pulse = 4,
+  pulse_vs_interval = 5,
+  count = 6,
+  burst = 7,
+  feedback_window = 8,
+  feedback_timeout = 9,
+  feedback_min_lag = 10,
+  flag_value = 11,
+  imu_rate = 12,
+  imu_mode = 13,
+  range_rate = 14,
+  lidar_model = 15,
+  lidar_preset = 16,
+  lidar_bias_every = 17,
+  imu_missing = 18,
+  lidar_missing = 19,
+  feedback_line_missing = 20,
 };
 
 // LIDAR-Lite variant fitted.
@@ -635,7 +660,7 @@ struct Ack {
   uint32_t request_seq{};  // [count] Sequence number of the host frame answered (the request id).
   uint8_t request_type{};  // [1] Message id of the command answered.
   uint8_t error_code{};  // [enum] ok, or why it was refused.
-  uint32_t detail{};  // [1] Extra context for a refusal (e.g. the limit that was exceeded); 0 if none.
+  uint32_t detail{};  // [1] Extra context for a refusal: for out_of_range and sensor_missing the Limit broken; 0 if none.
 
   // Writes the body into out; returns the bytes written, 0 if cap is too small.
   [[nodiscard]] std::size_t encode(uint8_t* out, std::size_t cap) const {
@@ -796,8 +821,8 @@ struct StopCapture {
 struct Configure {
   static constexpr MsgId kId = MsgId::CONFIGURE;
   static constexpr const char* kName = "CONFIGURE";
-  static constexpr std::size_t kMinBodyBytes = 16;
-  static constexpr std::size_t kMaxBodyBytes = 16;
+  static constexpr std::size_t kMinBodyBytes = 20;
+  static constexpr std::size_t kMaxBodyBytes = 20;
   uint16_t imu_rate_hz{};  // [Hz] BNO055 read rate, 0 = off, at most 100.
   uint8_t imu_mode{};  // [enum] BNO055 OPR_MODE for fusion (0x08 IMUPLUS, 0x0C NDOF, ...).
   uint8_t imu_ext_crystal{};  // [1] 1 = use the external 32 kHz crystal.
@@ -807,11 +832,12 @@ struct Configure {
   uint16_t lidar_bias_every{};  // [count] Receiver bias correction every N acquisitions (vendor: 100).
   uint8_t polarity{};  // [bitmask] Active level of each line.
   uint8_t feedback_enabled{};  // [1] 1 = the hot-shoe feedback line is wired.
-  uint32_t feedback_timeout_us{};  // [us] A trigger without feedback within this is reported feedback_missing. 1 ms .. 2 s.
+  uint32_t feedback_timeout_us{};  // [us] A trigger without feedback within this is reported feedback_missing. 1 ms .. 2 s, more than feedback_min_lag_us; 0 = derived at each START_CAPTURE: feedback_min_lag_us + 7/8 of the interval (single: + 0.5 s), at most 2 s.
+  uint32_t feedback_min_lag_us{};  // [us] The camera's shortest shutter lag: a feedback edge belongs only to a trigger fired at least this long before it. 0 .. 1 s. Pairing needs feedback_timeout_us - feedback_min_lag_us < interval_us.
 
   // Writes the body into out; returns the bytes written, 0 if cap is too small.
   [[nodiscard]] std::size_t encode(uint8_t* out, std::size_t cap) const {
-    const std::size_t n = 16u;
+    const std::size_t n = 20u;
     if (n > cap) return 0;
     wire::put(out + 0, imu_rate_hz);
     wire::put(out + 2, imu_mode);
@@ -823,6 +849,7 @@ struct Configure {
     wire::put(out + 10, polarity);
     wire::put(out + 11, feedback_enabled);
     wire::put(out + 12, feedback_timeout_us);
+    wire::put(out + 16, feedback_min_lag_us);
     return n;
   }
 
@@ -839,6 +866,7 @@ struct Configure {
     polarity = wire::get<uint8_t>(in + 10);
     feedback_enabled = wire::get<uint8_t>(in + 11);
     feedback_timeout_us = wire::get<uint32_t>(in + 12);
+    feedback_min_lag_us = wire::get<uint32_t>(in + 16);
     return true;
   }
 
@@ -855,6 +883,7 @@ struct Configure {
     v("polarity", polarity);
     v("feedback_enabled", feedback_enabled);
     v("feedback_timeout_us", feedback_timeout_us);
+    v("feedback_min_lag_us", feedback_min_lag_us);
   }
 };
 

@@ -189,46 +189,181 @@ TEST(App, IntervalCaptureStreamsEveryExposureWithFeedbackAndSensorsAtTheirRates)
             proto::SensorHealth::imu_ok | proto::SensorHealth::lidar_ok);
 }
 
-TEST(App, EveryCommandRefusalCase) {
+TEST(App, EveryCommandRefusalCaseNamesItsLimit) {
   Rig rig;
   rig.run_for(2'000'000);
   struct Case {
     uint32_t seq;
     ErrorCode want;
+    proto::Limit limit;
     const char* what;
   };
+  using proto::Limit;
   std::vector<Case> cases;
-  cases.push_back({rig.host.send(proto::StopCapture{}), ErrorCode::not_capturing, "stop while idle"});
-  cases.push_back({rig.host.send(interval_capture(10'000, 1'000)), ErrorCode::out_of_range, "interval < 50 ms"});
-  cases.push_back({rig.host.send(interval_capture(200'000, 300'000)), ErrorCode::out_of_range, "pulse > interval"});
-  cases.push_back({rig.host.send(interval_capture(100'000, 10'000)), ErrorCode::out_of_range,
-                   "feedback timeout (150 ms) not below the interval: pairing would be ambiguous"});
+  cases.push_back({rig.host.send(proto::StopCapture{}), ErrorCode::not_capturing, Limit::none, "stop while idle"});
+  cases.push_back({rig.host.send(interval_capture(10'000, 1'000)), ErrorCode::out_of_range, Limit::interval,
+                   "interval < 50 ms"});
+  cases.push_back({rig.host.send(interval_capture(200'000, 300'000)), ErrorCode::out_of_range,
+                   Limit::pulse_vs_interval, "pulse > interval"});
+  cases.push_back({rig.host.send(interval_capture(200'000, 500)), ErrorCode::out_of_range, Limit::shutter_pulse,
+                   "pulse < 1 ms"});
   auto bad_mode = interval_capture();
   bad_mode.mode = 9;
-  cases.push_back({rig.host.send(bad_mode), ErrorCode::out_of_range, "unknown mode"});
+  cases.push_back({rig.host.send(bad_mode), ErrorCode::out_of_range, Limit::capture_mode, "unknown mode"});
+  auto other_camera = interval_capture();
+  other_camera.camera_id = 1;
+  cases.push_back({rig.host.send(other_camera), ErrorCode::out_of_range, Limit::camera_id, "one camera port"});
+  auto no_count = interval_capture();
+  no_count.mode = static_cast<uint8_t>(proto::CaptureMode::count);
+  cases.push_back({rig.host.send(no_count), ErrorCode::out_of_range, Limit::count, "count mode without a count"});
+  auto short_burst = interval_capture();
+  short_burst.mode = static_cast<uint8_t>(proto::CaptureMode::focus_burst);
+  short_burst.burst_us = 100'000;
+  cases.push_back({rig.host.send(short_burst), ErrorCode::out_of_range, Limit::burst, "burst shorter than interval"});
   auto cfg = default_configure();
   cfg.imu_rate_hz = 400;
-  cases.push_back({rig.host.send(cfg), ErrorCode::out_of_range, "IMU faster than 100 Hz"});
+  cases.push_back({rig.host.send(cfg), ErrorCode::out_of_range, Limit::imu_rate, "IMU faster than 100 Hz"});
+  cfg = default_configure();
+  cfg.imu_mode = 0x05;
+  cases.push_back({rig.host.send(cfg), ErrorCode::out_of_range, Limit::imu_mode, "not a fusion mode"});
   cfg = default_configure();
   cfg.lidar_preset = 9;
-  cases.push_back({rig.host.send(cfg), ErrorCode::out_of_range, "no such LIDAR preset"});
+  cases.push_back({rig.host.send(cfg), ErrorCode::out_of_range, Limit::lidar_preset, "no such LIDAR preset"});
+  cfg = default_configure();
+  cfg.range_rate_hz = 600;
+  cases.push_back({rig.host.send(cfg), ErrorCode::out_of_range, Limit::range_rate, "LIDAR faster than 500 Hz"});
+  cfg = default_configure();
+  cfg.lidar_model = 7;
+  cases.push_back({rig.host.send(cfg), ErrorCode::out_of_range, Limit::lidar_model, "no such LIDAR model"});
+  cfg = default_configure();
+  cfg.feedback_enabled = 2;
+  cases.push_back({rig.host.send(cfg), ErrorCode::out_of_range, Limit::flag_value, "a flag is 0 or 1"});
   cfg = default_configure();
   cfg.feedback_timeout_us = 5'000'000;
-  cases.push_back({rig.host.send(cfg), ErrorCode::out_of_range, "feedback timeout > 2 s"});
+  cases.push_back({rig.host.send(cfg), ErrorCode::out_of_range, Limit::feedback_timeout, "feedback timeout > 2 s"});
+  cfg = default_configure();
+  cfg.feedback_min_lag_us = 150'000;
+  cases.push_back({rig.host.send(cfg), ErrorCode::out_of_range, Limit::feedback_min_lag,
+                   "min lag not below the timeout"});
+  // Accepted: the explicit 150 ms timeout of default_configure(), then a start it cannot pair.
+  cases.push_back({rig.host.send(default_configure()), ErrorCode::ok, Limit::none, "a valid configure"});
+  cases.push_back({rig.host.send(interval_capture(100'000, 10'000)), ErrorCode::out_of_range, Limit::feedback_window,
+                   "feedback window (150 ms) not below the interval: pairing would be ambiguous"});
   proto::SetTime old;
   old.utc_us = 946'684'800'000'000;  // 2000-01-01
-  cases.push_back({rig.host.send(old), ErrorCode::invalid_time, "time before 2020"});
-  cases.push_back({rig.host.send(proto::Resend{}), ErrorCode::not_supported, "resend reserved"});
-  cases.push_back({rig.host.send(proto::Pps{}), ErrorCode::unknown_command, "device-to-host type"});
-  cases.push_back({rig.host.send(interval_capture()), ErrorCode::ok, "a valid start"});
-  cases.push_back({rig.host.send(interval_capture()), ErrorCode::busy_capturing, "start while capturing"});
-  cases.push_back({rig.host.send(default_configure()), ErrorCode::busy_capturing, "configure while capturing"});
+  cases.push_back({rig.host.send(old), ErrorCode::invalid_time, Limit::none, "time before 2020"});
+  cases.push_back({rig.host.send(proto::Resend{}), ErrorCode::not_supported, Limit::none, "resend reserved"});
+  cases.push_back({rig.host.send(proto::Pps{}), ErrorCode::unknown_command, Limit::none, "device-to-host type"});
+  cases.push_back({rig.host.send(interval_capture()), ErrorCode::ok, Limit::none, "a valid start"});
+  cases.push_back({rig.host.send(interval_capture()), ErrorCode::busy_capturing, Limit::none, "start while capturing"});
+  cases.push_back({rig.host.send(default_configure()), ErrorCode::busy_capturing, Limit::none,
+                   "configure while capturing"});
   rig.run_for(300'000);
   for (const auto& c : cases) {
-    EXPECT_EQ(rig.host.ack_for(c.seq).error_code, static_cast<uint8_t>(c.want)) << c.what;
+    const auto ack = rig.host.ack_for(c.seq);
+    EXPECT_EQ(ack.error_code, static_cast<uint8_t>(c.want)) << c.what;
+    EXPECT_EQ(ack.detail, static_cast<uint32_t>(c.limit)) << c.what;
   }
   EXPECT_EQ(rig.board.app().config().imu_rate_hz, 100) << "refused CONFIGUREs changed nothing";
   EXPECT_EQ(rig.board.app().config().feedback_timeout_us, 150'000u);
+  EXPECT_EQ(rig.board.app().config().feedback_min_lag_us, 0u);
+}
+
+// 20 fps with a camera whose shutter lag (48 ms) is nearly the interval (50 ms): each exposure
+// starts just before the next trigger. The derived timeout (min lag 40 ms + 7/8 of 50 ms)
+// pairs every one, in focus_burst and count modes alike, and a trigger the camera ignored is
+// flagged without shifting the next pairs.
+TEST(App, TwentyFpsWithAShutterLagNearTheIntervalPairsEveryExposure) {
+  for (const auto mode : {proto::CaptureMode::focus_burst, proto::CaptureMode::count, proto::CaptureMode::interval}) {
+    sim::SimBoardConfig board_cfg;
+    board_cfg.camera.latency_us = 48'000;
+    board_cfg.camera.latency_jitter_us = 2'000;
+    Rig rig(board_cfg);
+    rig.board.camera().miss_trigger(5);
+    rig.run_for(2'000'000);
+    auto cfg = default_configure();
+    cfg.feedback_timeout_us = 0;  // derived
+    cfg.feedback_min_lag_us = 40'000;
+    const uint32_t cfg_seq = rig.host.send(cfg);
+    rig.run_for(100'000);
+    auto start = interval_capture(50'000, 10'000);
+    start.mode = static_cast<uint8_t>(mode);
+    if (mode == proto::CaptureMode::focus_burst) {
+      start.focus_lead_us = 300'000;
+      start.burst_us = 1'000'000;
+    }
+    if (mode == proto::CaptureMode::count) start.count = 40;
+    const uint32_t start_seq = rig.host.send(start);
+    rig.run_for(2'600'000);
+    if (mode != proto::CaptureMode::count) (void)rig.host.send(proto::StopCapture{});
+    rig.run_for(500'000);
+    EXPECT_EQ(rig.host.ack_for(cfg_seq).error_code, 0u);
+    ASSERT_EQ(rig.host.ack_for(start_seq).error_code, 0u) << "detail " << rig.host.ack_for(start_seq).detail;
+    const auto exposures = rig.host.of(proto::MsgId::EXPOSURE);
+    const auto& truth = rig.board.camera().exposures();
+    ASSERT_GE(exposures.size(), 35u);
+    std::size_t t = 0;
+    for (const auto& m : exposures) {
+      const auto e = m.as<proto::Exposure>();
+      if (e.image_index == 5) {
+        EXPECT_TRUE(e.flags & proto::ExposureFlags::feedback_missing);
+        continue;
+      }
+      ASSERT_LT(t, truth.size());
+      EXPECT_EQ(e.flags & ~proto::ExposureFlags::focus_cycle, 0u) << "image " << e.image_index;
+      EXPECT_EQ(e.trigger_t_us, truth[t].trigger_t_us) << "image " << e.image_index;
+      EXPECT_EQ(e.feedback_start_t_us, truth[t].start_t_us) << "image " << e.image_index;
+      ++t;
+    }
+    EXPECT_EQ(t, truth.size()) << "every true exposure paired";
+  }
+}
+
+// A burst longer than the camera's buffer: 20 fps into a 10-frame buffer that the card empties
+// at 5 frames/s. The camera stops answering after 10 shots and then answers one press in four;
+// the device reports exactly the presses the camera ignored as feedback_missing and pairs
+// every exposure it made.
+TEST(App, ABurstThatFillsTheCameraBufferReportsEveryIgnoredTrigger) {
+  sim::SimBoardConfig board_cfg;
+  board_cfg.camera.latency_us = 48'000;
+  board_cfg.camera.latency_jitter_us = 2'000;
+  board_cfg.camera.buffer_shots = 10;
+  board_cfg.camera.write_us = 200'000;
+  board_cfg.camera.min_frame_period_us = 50'000;
+  Rig rig(board_cfg);
+  rig.run_for(2'000'000);
+  auto cfg = default_configure();
+  cfg.feedback_timeout_us = 0;
+  cfg.feedback_min_lag_us = 40'000;
+  (void)rig.host.send(cfg);
+  rig.run_for(100'000);
+  auto start = interval_capture(50'000, 10'000);
+  start.mode = static_cast<uint8_t>(proto::CaptureMode::count);
+  start.count = 60;
+  const uint32_t start_seq = rig.host.send(start);
+  rig.run_for(3'600'000);
+  ASSERT_EQ(rig.host.ack_for(start_seq).error_code, 0u);
+
+  const auto& cam = rig.board.camera();
+  ASSERT_GE(cam.ignored().size(), 30u) << "the buffer filled";
+  for (const auto& ig : cam.ignored()) EXPECT_EQ(ig.reason, sim::IgnoredReason::buffer_full);
+  std::vector<uint32_t> ignored;
+  for (const auto& ig : cam.ignored()) ignored.push_back(ig.trigger_index);
+  std::vector<uint32_t> flagged;
+  std::size_t paired = 0;
+  for (const auto& m : rig.host.of(proto::MsgId::EXPOSURE)) {
+    const auto e = m.as<proto::Exposure>();
+    if (e.flags & proto::ExposureFlags::feedback_missing) {
+      flagged.push_back(e.image_index);
+    } else {
+      ASSERT_LT(paired, cam.exposures().size());
+      EXPECT_EQ(e.feedback_start_t_us, cam.exposures()[paired].start_t_us) << "image " << e.image_index;
+      ++paired;
+    }
+  }
+  EXPECT_EQ(flagged, ignored) << "exactly the presses the camera ignored are reported missing";
+  EXPECT_EQ(paired, cam.exposures().size());
+  EXPECT_EQ(paired + flagged.size(), 60u);
 }
 
 TEST(App, MalformedAndUnknownFramesAreAnsweredWhenTheirHeaderIsTrustworthy) {

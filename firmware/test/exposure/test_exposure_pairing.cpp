@@ -268,6 +268,65 @@ TEST_F(ExposurePairingTest, FocusCycleFlagIsCarriedOverFromTheTrigger) {
   EXPECT_EQ(out[0].flags, exposure_flags::focus_cycle);
 }
 
+// 20 fps, a shutter lag of 60 ms (longer than the 50 ms interval): every edge arrives after
+// the next trigger fired. With the camera's shortest lag (55 ms) configured the window
+// [55, 95] ms is shorter than the interval: the ignored trigger 2 times out before trigger 3's
+// edge, and nothing shifts.
+TEST_F(ExposurePairingTest, ShutterLagLongerThanTheIntervalPairsInOrderAndAMissDoesNotShift) {
+  FeedbackConfig c;
+  c.enabled = true;
+  c.timeout_us = 95 * kMs;
+  c.min_lag_us = 55 * kMs;
+  ASSERT_EQ(pairing.configure(c), FeedbackResult::ok);
+  for (uint32_t i = 1; i <= 5; ++i) trigger_at(i, kT + (i - 1) * 50 * kMs);
+  for (uint32_t i = 1; i <= 5; ++i) {
+    if (i == 2) continue;  // the camera ignored trigger 2
+    const uint64_t start = kT + (i - 1) * 50 * kMs + 60 * kMs;
+    exposure_at(start, start + 1 * kMs);
+  }
+  const auto out = poll(kT + 600 * kMs);
+  ASSERT_EQ(out.size(), 5u);
+  for (uint32_t i = 1; i <= 5; ++i) {
+    const Exposure& e = out[i - 1];
+    EXPECT_EQ(e.image_index, i);
+    if (i == 2) {
+      EXPECT_EQ(e.flags, exposure_flags::feedback_missing);
+    } else {
+      EXPECT_EQ(e.flags, 0u) << i;
+      EXPECT_EQ(e.feedback_start_t_us, e.trigger_t_us + 60 * kMs) << i;
+    }
+  }
+}
+
+TEST_F(ExposurePairingTest, AnEdgeSoonerThanTheShortestLagAfterEveryTriggerIsAManualShot) {
+  FeedbackConfig c;
+  c.enabled = true;
+  c.timeout_us = 95 * kMs;
+  c.min_lag_us = 40 * kMs;
+  ASSERT_EQ(pairing.configure(c), FeedbackResult::ok);
+  trigger_at(1, kT);
+  exposure_at(kT + 10 * kMs, kT + 11 * kMs);  // 10 ms after the trigger: not its exposure
+  exposure_at(kT + 45 * kMs, kT + 46 * kMs);
+  const auto out = poll(kT + 300 * kMs);
+  ASSERT_EQ(out.size(), 2u);
+  EXPECT_EQ(out[0].flags, exposure_flags::unsolicited);
+  EXPECT_EQ(out[0].image_index, 0u);
+  EXPECT_EQ(out[1].image_index, 1u);
+  EXPECT_EQ(out[1].feedback_start_t_us, kT + 45 * kMs);
+}
+
+TEST_F(ExposurePairingTest, AMinimumLagNotBelowTheTimeoutIsRefused) {
+  FeedbackConfig c;
+  c.enabled = true;
+  c.timeout_us = 100 * kMs;
+  c.min_lag_us = 100 * kMs;
+  EXPECT_EQ(pairing.configure(c), FeedbackResult::out_of_range);
+  c.timeout_us = 2'000 * kMs;
+  c.min_lag_us = 1'001 * kMs;
+  EXPECT_EQ(pairing.configure(c), FeedbackResult::out_of_range);
+  EXPECT_FALSE(pairing.feedback_enabled());
+}
+
 TEST_F(ExposurePairingTest, InvalidConfigurationIsRefusedAndChangesNothing) {
   FeedbackConfig c;
   c.enabled = true;

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import serial
 from serial.urlhandler import protocol_socket
 
+from icgt.device.limits import describe_refusal
 from icgt.errors import ProtocolError, VersionMismatchError
 from icgt.protocol import PROTOCOL_VERSION, TABLE_HASH, Received, StreamDecoder, encode_frame
 from icgt.protocol.messages import Ack, ErrorCode, Hello, Message, Ping, TimeSync, TimeSyncReply
@@ -45,11 +46,8 @@ class CommandRefusedError(DeviceLinkError):
     """The device refused a command (NACK) and changed nothing."""
 
     def __init__(self, command: str, code: int, detail: int) -> None:
-        try:
-            name = ErrorCode(code).name.lower()
-        except ValueError:
-            name = f"error {code}"
-        super().__init__(f"device refused {command}: {name} (detail {detail})")
+        # ACK.detail names the limit broken (protocol Limit); describe_refusal says it in words.
+        super().__init__(f"device refused {command}: {describe_refusal(code, detail)}")
         self.command = command
         self.code = code
         self.detail = detail

@@ -13,7 +13,7 @@ from typing import ClassVar
 from icgt.errors import EncodeError
 
 PROTOCOL_VERSION = 1
-TABLE_HASH = 0x2AFC2D30
+TABLE_HASH = 0xD0136D18
 MAX_FRAME_BYTES = 256
 HEADER_BYTES = 8
 CRC_BYTES = 4
@@ -100,6 +100,32 @@ class ErrorCode(IntEnum):
     NOT_SUPPORTED = 7
     INVALID_TIME = 8
     INTERNAL = 9
+
+
+class Limit(IntEnum):
+    """Which limit a refused command broke: ACK.detail of an out_of_range or sensor_missing answer (0 = not said). host/icgt/device/limits.py states each limit's value per board."""
+
+    NONE = 0
+    CAMERA_ID = 1
+    CAPTURE_MODE = 2
+    INTERVAL = 3
+    SHUTTER_PULSE = 4
+    PULSE_VS_INTERVAL = 5
+    COUNT = 6
+    BURST = 7
+    FEEDBACK_WINDOW = 8
+    FEEDBACK_TIMEOUT = 9
+    FEEDBACK_MIN_LAG = 10
+    FLAG_VALUE = 11
+    IMU_RATE = 12
+    IMU_MODE = 13
+    RANGE_RATE = 14
+    LIDAR_MODEL = 15
+    LIDAR_PRESET = 16
+    LIDAR_BIAS_EVERY = 17
+    IMU_MISSING = 18
+    LIDAR_MISSING = 19
+    FEEDBACK_LINE_MISSING = 20
 
 
 class LidarModel(IntEnum):
@@ -503,7 +529,7 @@ class Ack(Message):
     error_code: int = 0
     """[enum] ok, or why it was refused."""
     detail: int = 0
-    """[1] Extra context for a refusal (e.g. the limit that was exceeded); 0 if none."""
+    """[1] Extra context for a refusal: for out_of_range and sensor_missing the Limit broken; 0 if none."""
 
     def body(self) -> bytes:
         return _S_ACK.pack(self.request_seq, self.request_type, self.error_code, self.detail)
@@ -609,7 +635,7 @@ class StopCapture(Message):
         return cls(*_S_STOP_CAPTURE.unpack_from(buf, offset))
 
 
-_S_CONFIGURE = struct.Struct('<HBBHBBHBBI')
+_S_CONFIGURE = struct.Struct('<HBBHBBHBBII')
 
 
 @dataclass(slots=True)
@@ -619,9 +645,9 @@ class Configure(Message):
     ID: ClassVar[int] = 0x42
     NAME: ClassVar[str] = "CONFIGURE"
     DIRECTION: ClassVar[str] = "host_to_device"
-    MIN_BODY: ClassVar[int] = 16
-    MAX_BODY: ClassVar[int] = 16
-    UNITS: ClassVar[dict[str, str]] = {"imu_rate_hz": "Hz", "imu_mode": "enum", "imu_ext_crystal": "1", "range_rate_hz": "Hz", "lidar_model": "enum", "lidar_preset": "1", "lidar_bias_every": "count", "polarity": "bitmask", "feedback_enabled": "1", "feedback_timeout_us": "us"}
+    MIN_BODY: ClassVar[int] = 20
+    MAX_BODY: ClassVar[int] = 20
+    UNITS: ClassVar[dict[str, str]] = {"imu_rate_hz": "Hz", "imu_mode": "enum", "imu_ext_crystal": "1", "range_rate_hz": "Hz", "lidar_model": "enum", "lidar_preset": "1", "lidar_bias_every": "count", "polarity": "bitmask", "feedback_enabled": "1", "feedback_timeout_us": "us", "feedback_min_lag_us": "us"}
 
     imu_rate_hz: int = 0
     """[Hz] BNO055 read rate, 0 = off, at most 100."""
@@ -642,10 +668,12 @@ class Configure(Message):
     feedback_enabled: int = 0
     """[1] 1 = the hot-shoe feedback line is wired."""
     feedback_timeout_us: int = 0
-    """[us] A trigger without feedback within this is reported feedback_missing. 1 ms .. 2 s."""
+    """[us] A trigger without feedback within this is reported feedback_missing. 1 ms .. 2 s, more than feedback_min_lag_us; 0 = derived at each START_CAPTURE: feedback_min_lag_us + 7/8 of the interval (single: + 0.5 s), at most 2 s."""
+    feedback_min_lag_us: int = 0
+    """[us] The camera's shortest shutter lag: a feedback edge belongs only to a trigger fired at least this long before it. 0 .. 1 s. Pairing needs feedback_timeout_us - feedback_min_lag_us < interval_us."""
 
     def body(self) -> bytes:
-        return _S_CONFIGURE.pack(self.imu_rate_hz, self.imu_mode, self.imu_ext_crystal, self.range_rate_hz, self.lidar_model, self.lidar_preset, self.lidar_bias_every, self.polarity, self.feedback_enabled, self.feedback_timeout_us)
+        return _S_CONFIGURE.pack(self.imu_rate_hz, self.imu_mode, self.imu_ext_crystal, self.range_rate_hz, self.lidar_model, self.lidar_preset, self.lidar_bias_every, self.polarity, self.feedback_enabled, self.feedback_timeout_us, self.feedback_min_lag_us)
 
     @classmethod
     def from_buffer(cls, buf: bytes, offset: int, end: int) -> Configure:
@@ -786,7 +814,7 @@ FIELD_TYPES: dict[str, tuple[tuple[str, str], ...]] = {
     "LOG": (("t_us", "u64"), ("level", "u8"), ("text", "str[200]")),
     "START_CAPTURE": (("mode", "u8"), ("camera_id", "u8"), ("interval_us", "u32"), ("count", "u32"), ("focus_lead_us", "u32"), ("burst_us", "u32"), ("shutter_pulse_us", "u32")),
     "STOP_CAPTURE": (("camera_id", "u8"),),
-    "CONFIGURE": (("imu_rate_hz", "u16"), ("imu_mode", "u8"), ("imu_ext_crystal", "u8"), ("range_rate_hz", "u16"), ("lidar_model", "u8"), ("lidar_preset", "u8"), ("lidar_bias_every", "u16"), ("polarity", "u8"), ("feedback_enabled", "u8"), ("feedback_timeout_us", "u32")),
+    "CONFIGURE": (("imu_rate_hz", "u16"), ("imu_mode", "u8"), ("imu_ext_crystal", "u8"), ("range_rate_hz", "u16"), ("lidar_model", "u8"), ("lidar_preset", "u8"), ("lidar_bias_every", "u16"), ("polarity", "u8"), ("feedback_enabled", "u8"), ("feedback_timeout_us", "u32"), ("feedback_min_lag_us", "u32")),
     "TIME_SYNC": (("host_t_ns", "u64"),),
     "SET_TIME": (("utc_us", "i64"),),
     "PING": (("nonce", "u32"),),

@@ -2,7 +2,8 @@
 
 Every key names its unit (``_s``, ``_hz``, ``_mm``, ``_m``, ``_deg``, ``_px``); every value is checked when
 the file is loaded, before any device or autopilot is contacted, against the range declared with its
-field here (and, for [camera], in `icgt.geotag.GeotagConfig`). The schema is declared with msgspec
+field here, the device's limits (`icgt.device.limits`: trigger rate, pulse widths, the feedback window,
+the rates the sensors deliver) and, for [camera], `icgt.geotag.GeotagConfig`. The schema is declared with msgspec
 (types, fixed-length arrays, numeric ranges); what a range cannot say (one value against another) is
 checked in ``__post_init__``. An error names the file, the key, the value and what is allowed.
 
@@ -40,7 +41,8 @@ Example (all keys optional; these are the defaults)::
     lidar_model = "v3"             # "v3hp", or "none"
     lidar_preset = 0
     feedback = true                # hot-shoe line wired
-    feedback_timeout_s = 0.15
+    # feedback_timeout_s = 0.15    # unset: derived per capture, feedback_min_lag_s + 7/8 of the interval
+    feedback_min_lag_s = 0.0       # the camera's shortest shutter lag (e.g. 0.04 for a body at 48 +- 2 ms)
     feedback_active_high = false
 
     [camera]                       # intrinsics and mounting (icgt.geotag.GeotagConfig)
@@ -68,8 +70,10 @@ from typing import Annotated, Any, Literal
 import msgspec
 from msgspec import Meta
 
+from icgt.device.limits import LimitError, check_capture, check_feedback, check_sensors
 from icgt.errors import IcgtError
 from icgt.geotag import GeotagConfig
+from icgt.protocol.messages import LidarModel
 
 __all__ = [
     "CaptureSection",
@@ -124,10 +128,12 @@ class CaptureSection(_Section, frozen=True, kw_only=True):
         if self.shutter_pulse_s >= self.interval_s:
             raise ValueError(
                 f"shutter_pulse_s ({self.shutter_pulse_s}) must be shorter than interval_s ({self.interval_s}): "
-                "the line must go inactive between shots"
+                "the line must go inactive between shots (limit pulse_vs_interval)"
             )
         if self.mode == "focus_burst" and self.burst_s < self.interval_s:
-            raise ValueError(f"burst_s ({self.burst_s}) must be at least interval_s ({self.interval_s}) in focus_burst")
+            raise ValueError(
+                f"burst_s ({self.burst_s}) must be at least interval_s ({self.interval_s}) in focus_burst (limit burst)"
+            )
 
 
 class SensorsSection(_Section, frozen=True, kw_only=True):
@@ -138,12 +144,33 @@ class SensorsSection(_Section, frozen=True, kw_only=True):
     lidar_preset: Annotated[int, Meta(ge=0, le=6)] = 0  # v3: 0-5, v3HP: 0-6
     lidar_bias_every: Annotated[int, Meta(ge=1, le=255)] = 100
     feedback: bool = True
-    feedback_timeout_s: Annotated[float, Meta(ge=0.001, le=2.0)] = 0.15
+    # None: derived at each capture from its interval (icgt.device.limits.auto_feedback_timeout_s)
+    feedback_timeout_s: Annotated[float, Meta(ge=0.001, le=2.0)] | None = None
+    feedback_min_lag_s: Annotated[float, Meta(ge=0.0, le=1.0)] = 0.0  # the camera's shortest shutter lag
     feedback_active_high: bool = False
 
+    @property
+    def imu_mode_code(self) -> int:
+        """BNO055 OPR_MODE of `imu_mode`."""
+        return 0x0C if self.imu_mode == "ndof" else 0x08
+
+    @property
+    def lidar_model_code(self) -> LidarModel:
+        return {"none": LidarModel.NONE, "v3": LidarModel.V3, "v3hp": LidarModel.V3HP}[self.lidar_model]
+
     def __post_init__(self) -> None:
-        if self.lidar_model == "v3" and self.lidar_preset > 5:
-            raise ValueError(f"lidar_preset {self.lidar_preset}: the LIDAR-Lite v3 has presets 0-5")
+        try:
+            check_sensors(
+                imu_rate_hz=self.imu_rate_hz,
+                imu_mode=self.imu_mode_code,
+                range_rate_hz=self.range_rate_hz,
+                lidar_model=self.lidar_model_code,
+                lidar_preset=self.lidar_preset,
+                lidar_bias_every=self.lidar_bias_every,
+            )
+            check_feedback(self.feedback_timeout_s, self.feedback_min_lag_s)
+        except LimitError as exc:
+            raise ValueError(str(exc)) from None
 
 
 class OutputSection(_Section, frozen=True, kw_only=True):
@@ -160,6 +187,21 @@ class RecorderConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     camera: GeotagConfig = msgspec.field(default_factory=GeotagConfig)
     output: OutputSection = msgspec.field(default_factory=OutputSection)
     source: str = "defaults"
+
+    def __post_init__(self) -> None:
+        c, s = self.capture, self.sensors
+        try:  # the configured capture, paired with the configured feedback, as the device will check it
+            check_capture(
+                mode=c.mode,
+                interval_s=c.interval_s,
+                shutter_pulse_s=c.shutter_pulse_s,
+                burst_s=c.burst_s,
+                feedback=s.feedback,
+                feedback_timeout_s=s.feedback_timeout_s,
+                feedback_min_lag_s=s.feedback_min_lag_s,
+            )
+        except LimitError as exc:
+            raise ValueError(f"[capture] with [sensors]: {exc}") from None
 
     def with_overrides(
         self, *, device_url: str | None = None, mavlink_url: str | None = None, out_dir: Path | None = None

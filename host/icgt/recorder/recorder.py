@@ -25,6 +25,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+import msgspec
+
 from icgt import __version__
 from icgt.control import ControlServer, Reply, Request
 from icgt.device import (
@@ -35,28 +37,26 @@ from icgt.device import (
     DeviceLinkEvent,
     TimeSyncSample,
 )
+from icgt.device.limits import CORE, BoardLimits, LimitError, check_capture, for_board
 from icgt.errors import IcgtError
 from icgt.geotag import FrameRecord
-from icgt.mavlink.camera import CameraComponent, CommandResult
+from icgt.mavlink.camera import CameraComponent, CommandResult, HandlerResult
 from icgt.mavlink.link import LinkConfig, MavlinkEvent, MavlinkLink, MavlinkMessage, StreamRate
 from icgt.mavlink.signing import load_signing_key
 from icgt.protocol import PROTOCOL_VERSION, TABLE_HASH
 from icgt.protocol import Received as DeviceReceived
 from icgt.protocol.messages import (
     Board,
-    CaptureMode,
     ClockSource,
-    Configure,
     Hello,
+    Limit,
     Log,
     LogLevel,
-    PinPolarity,
     SetTime,
-    StartCapture,
     Status,
     StopCapture,
 )
-from icgt.recorder import topics, views
+from icgt.recorder import capture, topics, views
 from icgt.recorder.camera_link import CAMERA_IMAGES_SCHEMA, CameraImages, build_camera
 from icgt.recorder.config import RecorderConfig
 from icgt.recorder.views import FoxgloveViews
@@ -153,6 +153,7 @@ class Recorder:
         self._snapshot: dict[str, Any] = {}
         self._waiting_for_device = False
         self.failure: IcgtError | None = None
+        self._sensors = config.sensors  # what the device was configured with (a sensor that does not answer: off)
 
     @property
     def last_status(self) -> Status | None:
@@ -399,27 +400,17 @@ class Recorder:
     # ------------------------------------------------------------------ device
     def _configure_device(self) -> None:
         assert self.device is not None
-        s = self.config.sensors
-        polarity = int(PinPolarity.FOCUS_ACTIVE_HIGH | PinPolarity.SHUTTER_ACTIVE_HIGH | PinPolarity.PPS_RISING)
-        if s.feedback_active_high:
-            polarity |= int(PinPolarity.FEEDBACK_ACTIVE_HIGH)
-        cmd = Configure(
-            imu_rate_hz=s.imu_rate_hz,
-            imu_mode=0x0C if s.imu_mode == "ndof" else 0x08,
-            imu_ext_crystal=0,
-            range_rate_hz=s.range_rate_hz if s.lidar_model != "none" else 0,
-            lidar_model=_LIDAR_MODELS[s.lidar_model],
-            lidar_preset=s.lidar_preset,
-            lidar_bias_every=s.lidar_bias_every,
-            polarity=polarity,
-            feedback_enabled=1 if s.feedback else 0,
-            feedback_timeout_us=int(s.feedback_timeout_s * 1e6),
-        )
-        try:
-            self.device.command(cmd)
-        except CommandRefusedError as exc:
-            # A missing sensor must not stop capture: record why and go on with what the device has.
-            log.warning("device kept its configuration: %s", exc)
+        sensors = self.config.sensors
+        for _ in range(3):  # at most: without the IMU, then without the LiDAR
+            try:
+                self.device.command(capture.configure_command(sensors, self._limits()))
+                break
+            except CommandRefusedError as exc:
+                # Never record with the device's old settings: go on only without a sensor that does not
+                # answer (said loudly), refuse to start otherwise.
+                sensors = capture.configure_refused(sensors, exc.code, exc.detail, str(exc))
+                log.warning("%s: recording without it", exc)
+        self._sensors = sensors
         if self.config.device.set_rtc:
             try:
                 self.device.command(SetTime(utc_us=time.time_ns() // 1000))
@@ -480,21 +471,9 @@ class Recorder:
         assert self.device is not None
         c = self.config.capture
         interval_s, count = check_capture_request(interval_s, count, c.shutter_pulse_s)
-        interval_us = int((interval_s if interval_s is not None else c.interval_s) * 1e6)
-        if count == 1:
-            mode = CaptureMode.SINGLE
-        elif count > 1:
-            mode = CaptureMode.COUNT
-        else:
-            mode = CaptureMode.FOCUS_BURST if c.mode == "focus_burst" else CaptureMode.INTERVAL
-        cmd = StartCapture(
-            mode=int(mode),
-            interval_us=interval_us,
-            count=count if count > 1 else 0,
-            focus_lead_us=int(c.focus_lead_s * 1e6) if mode == CaptureMode.FOCUS_BURST else 0,
-            burst_us=int(c.burst_s * 1e6) if mode == CaptureMode.FOCUS_BURST else 0,
-            shutter_pulse_us=int(c.shutter_pulse_s * 1e6),
-        )
+        config = msgspec.structs.replace(self.config, sensors=self._sensors)
+        cmd, mode = capture.start_command(config, interval_s, count, self._limits())  # LimitError: nothing sent
+        interval_us = cmd.interval_us
         self.device.command(cmd)
         self._capturing = count != 1
         if self.camera is not None:
@@ -510,10 +489,18 @@ class Recorder:
         log.info("capture stopped")
 
     # camera component handler (CaptureHandler protocol)
-    def _handler_result(self, action: Any) -> CommandResult:
+    def _limits(self) -> BoardLimits:
+        return for_board(self.hello.board if self.hello is not None else None)
+
+    def _handler_result(self, action: Any) -> CommandResult | HandlerResult:
         try:
             action()
-        except (CommandRefusedError, CaptureRequestError) as exc:
+        except LimitError as exc:  # CaptureRequestError too
+            log.warning("%s", exc)
+            if self.mavlink is not None:
+                capture.announce(self.mavlink, exc)
+            return capture.denied(exc)
+        except CommandRefusedError as exc:
             log.warning("%s", exc)
             return CommandResult.DENIED
         except DeviceLinkError as exc:
@@ -730,12 +717,15 @@ class Recorder:
         return {"error": f"unknown command {command!r} (start, stop, status)"}
 
 
-class CaptureRequestError(IcgtError):
+class CaptureRequestError(LimitError):
     """A start-capture request (control socket, ground station, command line) with a value out of range."""
 
+    def __init__(self, message: str, limit: Limit = Limit.NONE) -> None:
+        super().__init__(limit, message)
 
-MIN_INTERVAL_S = 0.05  # the firmware's trigger: 20 fps at most
-MAX_INTERVAL_S = 3600.0
+
+MIN_INTERVAL_S = CORE.min_interval_s  # the firmware's trigger: 20 fps at most (icgt.device.limits)
+MAX_INTERVAL_S = CORE.max_interval_s
 MAX_COUNT = 0xFFFF  # START_CAPTURE.count is a u16
 
 
@@ -744,14 +734,10 @@ def check_capture_request(interval_s: Any, count: Any, shutter_pulse_s: float) -
     if interval_s is not None:
         if isinstance(interval_s, bool) or not isinstance(interval_s, int | float) or not math.isfinite(interval_s):
             raise CaptureRequestError(f"interval_s {interval_s!r}: a number of seconds between shots is needed")
-        if not MIN_INTERVAL_S <= interval_s <= MAX_INTERVAL_S:
-            raise CaptureRequestError(
-                f"interval_s {interval_s}: allowed {MIN_INTERVAL_S} .. {MAX_INTERVAL_S} s (the trigger's limits)"
-            )
-        if shutter_pulse_s >= interval_s:
-            raise CaptureRequestError(
-                f"interval_s {interval_s}: must be longer than the shutter pulse ({shutter_pulse_s} s)"
-            )
+        try:
+            check_capture(mode="interval", interval_s=interval_s, shutter_pulse_s=shutter_pulse_s, feedback=False)
+        except LimitError as exc:
+            raise CaptureRequestError(exc.message, exc.limit) from None
     if isinstance(count, bool) or not isinstance(count, int):
         if isinstance(count, float) and count.is_integer() and math.isfinite(count):
             count = int(count)
@@ -792,13 +778,13 @@ class _CaptureHandler:
     def __init__(self, recorder: Recorder) -> None:
         self._r = recorder
 
-    def start(self, interval_s: float, count: int) -> CommandResult:
+    def start(self, interval_s: float, count: int) -> CommandResult | HandlerResult:
         # MAV_CMD_IMAGE_START_CAPTURE: interval 0 asks for the camera's own (the configured one).
         interval = None if interval_s == 0 else interval_s
         return self._r._handler_result(lambda: self._r.start_capture(interval, count))
 
-    def stop(self) -> CommandResult:
+    def stop(self) -> CommandResult | HandlerResult:
         return self._r._handler_result(self._r.stop_capture)
 
-    def shoot(self) -> CommandResult:
+    def shoot(self) -> CommandResult | HandlerResult:
         return self._r._handler_result(lambda: self._r.start_capture(None, 1))

@@ -221,3 +221,26 @@ def pose_report(frames: list[dict[str, Any]]) -> dict[str, Any]:
         "autopilot_clock": dict(sorted(Counter(str(fr.get("autopilot_clock")) for fr in frames).items())),
         "position_source": dict(sorted(Counter(str(fr.get("position_source")) for fr in frames).items())),
     }
+
+
+def camera_misses(device_events: Path, frames: list[dict[str, Any]]) -> dict[str, Any]:
+    """The presses the simulated camera ignored (its truth) against what the recording reports.
+
+    Every ignored press must be a frame flagged feedback_missing with its image index (the device's
+    index and the camera's count of presses both start at 1), and no frame may be flagged missing
+    for a press the camera answered."""
+    ignored: dict[int, str] = {}
+    with device_events.open() as f:
+        for line in f:
+            if line.strip():
+                e = json.loads(line)
+                if e.get("event") == "trigger_ignored":
+                    ignored[int(e["trigger_index"])] = str(e.get("reason", ""))
+    flagged = {int(fr["image_index"]) for fr in frames if "feedback_missing" in fr.get("flags", [])}
+    return {
+        "ignored_by_camera": len(ignored),
+        "ignored_by_reason": dict(sorted(Counter(ignored.values()).items())),
+        "ignored_and_flagged": len(set(ignored) & flagged),
+        "ignored_not_flagged": sorted(set(ignored) - flagged),
+        "flagged_but_answered": sorted(flagged - set(ignored)),
+    }

@@ -176,6 +176,8 @@ class Capture:
     burst_ms: int = 2000
     burst_fps: float = 5.0
     interval_ms: int = 200
+    count: int = 0
+    """Shots the ground station asks for (MAV_CMD_IMAGE_START_CAPTURE param 3; 0 = until stopped, interval mode)."""
 
     def nominal_trigger_taus_s(self, duration_s: float) -> list[float]:
         """Scenario times of the trigger pulses this plan asks for (before any shutter lag)."""
@@ -183,7 +185,7 @@ class Capture:
         out: list[float] = []
         if self.mode == "interval":
             n = 0
-            while (t := self.start_s + n * self.interval_ms * 1e-3) < stop - 1e-9:
+            while (t := self.start_s + n * self.interval_ms * 1e-3) < stop - 1e-9 and not (0 < self.count <= n):
                 out.append(t)
                 n += 1
             return out
@@ -219,6 +221,12 @@ class Camera:
     exposure_us: int = 1000
     shutter_latency_us: int = 48_000
     shutter_jitter_us: int = 2_000
+    max_fps: float = 0.0
+    """The body's top frame rate: a press sooner after the last is ignored (0 = no limit; Sony Alpha 9: 20)."""
+    buffer_shots: int = 0
+    """Frames the body's buffer holds before it stops answering (0 = unlimited; Alpha 9: ~362 JPEG, 241 RAW)."""
+    write_ms: float = 0.0
+    """Card write time per frame: how fast the buffer empties [ms]."""
     first_file_number: int = 1
     """Number of the first file on the card (DSC00001.JPG for 1)."""
     k1: float = 0.0
@@ -625,6 +633,7 @@ def _read_camera(r: _Reader) -> Camera:
         burst_ms=c.integer("burst_ms", 2000, min_value=1),
         burst_fps=c.number("burst_fps", 5.0, positive=True, max_value=30.0),
         interval_ms=c.integer("interval_ms", 200, min_value=1),
+        count=c.integer("count", 0, min_value=0),
     )
     if capture.stop_s is not None and capture.stop_s <= capture.start_s:
         c.fail("stop_s", f"must be after start_s ({capture.start_s:g})")
@@ -645,6 +654,9 @@ def _read_camera(r: _Reader) -> Camera:
         exposure_us=r.integer("exposure_us", 1000, min_value=1),
         shutter_latency_us=r.integer("shutter_latency_us", 48_000, min_value=0),
         shutter_jitter_us=r.integer("shutter_jitter_us", 2_000, min_value=0),
+        max_fps=r.number("max_fps", 0.0, min_value=0.0, max_value=1000.0),
+        buffer_shots=r.integer("buffer_shots", 0, min_value=0),
+        write_ms=r.number("write_ms", 0.0, min_value=0.0, max_value=60_000.0),
         first_file_number=r.integer("first_file_number", 1, min_value=1, max_value=99_999),
         k1=r.number("k1", 0.0, min_value=-1.0, max_value=1.0),
         k2=r.number("k2", 0.0, min_value=-1.0, max_value=1.0),

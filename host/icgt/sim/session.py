@@ -146,6 +146,10 @@ class SimSession:
             cmd += ["--usb-frame-us", str(sc.link.usb_latency_us)]
         if sc.link.usb_jitter_us:
             cmd += ["--usb-jitter-us", str(sc.link.usb_jitter_us)]
+        if cam.max_fps > 0:
+            cmd += ["--camera-min-frame-us", str(round(1e6 / cam.max_fps))]
+        if cam.buffer_shots:
+            cmd += ["--camera-buffer-shots", str(cam.buffer_shots), "--camera-write-us", str(round(cam.write_ms * 1e3))]
         if sc.faults.camera_missed_triggers:
             cmd += ["--camera-miss-triggers", ",".join(str(i) for i in sc.faults.camera_missed_triggers)]
         log = self.files.device_log.open("wb")

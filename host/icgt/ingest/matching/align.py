@@ -311,15 +311,19 @@ def solve_segment(
         ar, br = band_a[r], band_b[r]
         an = band_a[r + 1]
         fr_row, g_row = f[r], g[r + 1]
-        with_pair = {bb + lo: fr_row[bb - ar] + g_row[bb + 1 - an] for bb in pair[r]}
+        cols = pair[r]
+        vals = [fr_row[bb - ar] + g_row[bb + 1 - an] for bb in cols]
         # the best alignment leaving image r out: min over columns of f[r] + g[r + 1]; outside
         # [A_{r+1}, B_r] both sides only add frame skips, so the minimum lies inside
         with_skip = min(map(operator.add, fr_row[an - ar : br - ar + 1], g_row[: br - an + 1])) + si
-        if len(with_pair) == 1 and with_skip > limit:
-            ((j, v),) = with_pair.items()
-            if abs(v - opt) < 1e-9:  # the usual case: one exposure fits and leaving it costs too much
-                out.pairs[imgs[r]] = j
+        if with_skip > limit:
+            near_k = [k for k, v in enumerate(vals) if v <= limit]
+            if len(near_k) == 1 and abs(vals[near_k[0]] - opt) < 1e-9:
+                # the usual case: one exposure fits within the margin, it is the optimum's, and leaving
+                # the image out costs too much (what `_decide` concludes, without its bookkeeping)
+                out.pairs[imgs[r]] = cols[near_k[0]] + lo
                 continue
+        with_pair = {bb + lo: v for bb, v in zip(cols, vals, strict=True)}
         # The optimum's own pairing of image r. Where several alignments are optimal any of them will
         # do: the image is then ambiguous whichever is taken (the others are within the margin).
         mine = next((j for j, v in with_pair.items() if abs(v - opt) < 1e-9), None)

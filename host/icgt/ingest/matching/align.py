@@ -97,25 +97,26 @@ def segments(
     Segments where ranges overlap: a new one starts past the greatest end so far."""
     cands, ranges = windows(card, fr, model, widen)
     n = len(card)
-    with_range = [i for i in range(n) if ranges[i] is not None]
+    present = [r for r in ranges if r is not None]
     segs: Segments = []
     extra: list[int] = []
-    if with_range:
-        r0 = np.array([ranges[i][0] for i in with_range], dtype=np.int64)  # type: ignore[index]
-        r1 = np.array([ranges[i][1] for i in with_range], dtype=np.int64)  # type: ignore[index]
+    if present:
+        with_range = np.flatnonzero(np.fromiter((r is not None for r in ranges), dtype=bool, count=n))
+        r01 = np.array(present, dtype=np.int64)
+        r0, r1 = r01[:, 0], r01[:, 1]
         lo_adj = np.maximum.accumulate(r0)
         kept = lo_adj <= r1
-        extra = np.asarray(with_range)[~kept].tolist()
+        extra = with_range[~kept].tolist()
         for i in extra:
             ranges[i] = None
-        ki = np.asarray(with_range)[kept]
+        ki = with_range[kept]
         klo, khi = lo_adj[kept], r1[kept]
         reach = np.maximum.accumulate(khi)
         starts = np.flatnonzero(np.concatenate([[True], klo[1:] > reach[:-1]])) if len(ki) else np.zeros(0, int)
         ends = np.concatenate([starts[1:], [len(ki)]]).astype(np.int64)
         ki_l, klo_l, khi_l, reach_l = ki.tolist(), klo.tolist(), khi.tolist(), reach.tolist()
-        for k, i in enumerate(ki_l):
-            ranges[i] = (klo_l[k], khi_l[k])
+        for i, a, b in zip(ki_l, klo_l, khi_l, strict=True):
+            ranges[i] = (a, b)
         for s0, s1 in zip(starts.tolist(), ends.tolist(), strict=True):
             segs.append((ki_l[s0:s1], klo_l[s0], reach_l[s1 - 1]))
     return cands, ranges, segs, extra

@@ -94,7 +94,20 @@ def segments(
 
     Ranges made monotone (a camera numbers in time order): an image may not start before the latest
     start of the images before it (a running maximum; an image whose range then closes is extra).
-    Segments where ranges overlap: a new one starts past the greatest end so far."""
+    Segments where ranges overlap: a new one starts past the greatest end so far. The last answer is
+    remembered (a cost-only pass is often followed by the full solve of the same model); callers only
+    read what is returned."""
+    key = (model.offset, model.drift, widen)
+    if fr.last_segments is not None and fr.last_segments[0] == key:
+        return fr.last_segments[1]
+    found = _segments(card, fr, model, widen)
+    fr.last_segments = (key, found)
+    return found
+
+
+def _segments(
+    card: Card, fr: Frames, model: Model, widen: float
+) -> tuple[Cands, list[tuple[int, int] | None], Segments, list[int]]:
     cands, ranges = windows(card, fr, model, widen)
     n = len(card)
     present = [r for r in ranges if r is not None]

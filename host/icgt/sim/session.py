@@ -160,10 +160,10 @@ class SimSession:
         cmd = [
             str(self._binary),
             "--truth", str(self.files.sensor_truth),
-            "--t0-monotonic-ns", str(t0),
-            "--utc0-us", str(utc0_us),
+            "--t0-monotonic-ns", str(self.clocks.t0_monotonic_ns),
+            "--utc0-us", str(self.clocks.utc0_us),
             "--link", link_arg,
-            "--device-offset-us", str(sc.clocks.device.offset_us),
+            "--device-offset-us", repr(float(self.clocks.device_offset_us)),
             "--device-drift-ppm", str(sc.clocks.device.drift_ppm),
             "--camera-latency-us", str(cam.shutter_latency_us),
             "--camera-jitter-us", str(cam.shutter_jitter_us),

@@ -99,7 +99,8 @@ def segments(
     read what is returned."""
     key = (model.offset, model.drift, widen)
     if fr.last_segments is not None and fr.last_segments[0] == key:
-        return fr.last_segments[1]
+        known: tuple[Cands, list[tuple[int, int] | None], Segments, list[int]] = fr.last_segments[1]
+        return known
     found = _segments(card, fr, model, widen)
     fr.last_segments = (key, found)
     return found

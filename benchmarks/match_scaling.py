@@ -11,8 +11,10 @@ before the flight. Each card is a folder of small real JPEGs (16x16 px, EXIF Dat
 for 10 ms, SubSecTimeOriginal) written once with Pillow and cached under build/bench/match_cards/;
 a size n is the first n images of the 18 000-image card and the frames recorded up to them.
 
-Each figure is measured in its own subprocess (clean peak RSS, `resource.getrusage` ru_maxrss):
-(a) the floor: `read_image_time` on every image of the card (exifread, as `icgt match` reads them);
+Each figure is measured in its own subprocess (clean peak RSS, `resource.getrusage` ru_maxrss), after
+the card has been read once untimed (both then read it from the page cache):
+(a) the floor: `read_image_time` on every image of the card (exifread, the same function and tags
+    `icgt match` reads), measured before and after (b); the lesser time is the floor;
 (b) `match_images(frames, paths)`: reading plus the alignment; every pair is checked against the
     truth (a wrong pair is reported and makes the exit status 1).
 Targets (issue 17): 18 000 images in under 60 s and 1 GB peak RSS, (b) within 3 x (a). Wall and
@@ -182,6 +184,13 @@ def _child(what: str, resolution: str, n: int) -> dict[str, Any]:
     return out
 
 
+def _warm(paths: list[Path]) -> None:
+    """Read the card once, untimed: floor and match then both read it from the page cache (measured cold,
+    whichever ran first would pay the disk for both)."""
+    for p in paths:
+        p.read_bytes()
+
+
 def _measure(what: str, resolution: str, n: int) -> dict[str, Any]:
     cmd = [sys.executable, __file__, "--child", what, "--resolutions", resolution, "--sizes", str(n)]
     proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
@@ -214,8 +223,15 @@ def main() -> int:
     ok = True
     for r in resolutions:
         for n in sizes:
+            _warm(_paths(_card(r), n))
             floor = _measure("exif", r, n)
             match = _measure("match", r, n)
+            again = _measure("exif", r, n)
+            floor = {
+                **floor,
+                "wall_s": min(floor["wall_s"], again["wall_s"]),
+                "cpu_s": min(floor["cpu_s"], again["cpu_s"]),
+            }
             ratio = match["wall_s"] / floor["wall_s"] if floor["wall_s"] > 0 else math.inf
             ratio_cpu = match["cpu_s"] / floor["cpu_s"] if floor["cpu_s"] > 0 else math.inf
             print(

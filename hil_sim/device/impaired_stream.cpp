@@ -11,7 +11,15 @@ uint64_t monotonic_now_ns() {
 }
 
 ImpairedStream::ImpairedStream(HostPort& port, const ClockMap& map, uint64_t seed)
-    : port_(port), map_(map), rng_(seed) {}
+    : port_(port), map_(map), frame_anchor_ns_(map.t0_monotonic_ns), rng_(seed) {}
+
+uint64_t ImpairedStream::next_frame_ns(uint64_t ns, uint64_t frame_ns) const {
+  // The first frame boundary after ns, on a grid through the anchor (which may lie ahead of ns).
+  const auto f = static_cast<int64_t>(frame_ns);
+  const int64_t since = static_cast<int64_t>(ns - frame_anchor_ns_);  // two's complement: negative if ahead
+  const int64_t floor_div = since >= 0 ? since / f : -((-since + f - 1) / f);
+  return frame_anchor_ns_ + static_cast<uint64_t>((floor_div + 1) * f);
+}
 
 uint64_t ImpairedStream::jitter_ns() {
   if (impairment_.jitter_us == 0) return 0;
@@ -44,10 +52,7 @@ std::size_t ImpairedStream::write(const uint8_t* data, std::size_t len) {
   const uint64_t written_ns = map_.monotonic_ns_at_device(clock_->now_us());
   const uint64_t frame_ns = static_cast<uint64_t>(impairment_.frame_us) * 1000u;
   uint64_t release = written_ns;
-  if (frame_ns > 0) {
-    const uint64_t since = written_ns - map_.t0_monotonic_ns;
-    release = map_.t0_monotonic_ns + (since / frame_ns + 1) * frame_ns;
-  }
+  if (frame_ns > 0) release = next_frame_ns(written_ns, frame_ns);
   release += jitter_ns();
   if (!to_host_.empty() && release < to_host_.back().release) release = to_host_.back().release;  // FIFO
   for (std::size_t i = 0; i < n; ++i) {
@@ -87,10 +92,7 @@ void ImpairedStream::pump(uint64_t now_monotonic_ns) {
     // Read the clock after the bytes are in hand: a time taken earlier in the loop could come
     // before they were even sent, and the device would then see them before the host sent them.
     uint64_t arrive_ns = std::max(now_monotonic_ns, monotonic_now_ns());
-    if (frame_ns > 0) {
-      const uint64_t since = arrive_ns - map_.t0_monotonic_ns;
-      arrive_ns = map_.t0_monotonic_ns + (since / frame_ns + 1) * frame_ns;
-    }
+    if (frame_ns > 0) arrive_ns = next_frame_ns(arrive_ns, frame_ns);
     arrive_ns += jitter_ns();
     uint64_t release_us = map_.device_us_at_tau(map_.tau_s_at_monotonic(arrive_ns));
     if (!to_device_.empty() && release_us < to_device_.back().release) release_us = to_device_.back().release;

@@ -37,8 +37,10 @@ struct ClockMap {
   [[nodiscard]] double tau_s_at_device(uint64_t device_us) const {
     return (static_cast<double>(device_us) - device_offset_us) * 1e-6 / (1.0 + device_drift_ppm * 1e-6);
   }
+  // Before the origin too (tau < 0: a session holding its scenario clock, hil_sim/README.md).
   [[nodiscard]] uint64_t monotonic_ns_at_device(uint64_t device_us) const {
-    return t0_monotonic_ns + static_cast<uint64_t>(std::max(0.0, tau_s_at_device(device_us) * 1e9));
+    const double ns = static_cast<double>(t0_monotonic_ns) + tau_s_at_device(device_us) * 1e9;
+    return ns <= 0.0 ? 0 : static_cast<uint64_t>(ns);
   }
 };
 
@@ -61,6 +63,9 @@ class ImpairedStream final : public hal::ByteStream {
   static constexpr std::size_t kTxCapacity = 4096;  // the device's USB transmit buffering
 
   ImpairedStream(HostPort& port, const ClockMap& map, uint64_t seed);
+  // A new clock map (the `origin` control command). The USB frame grid keeps its phase: it stays
+  // anchored at the first map's origin.
+  void set_clock_map(const ClockMap& map) { map_ = map; }
   // The firmware's clock (the simulated board's); must be set before the first call.
   void set_device_clock(const hal::Clock& clock) { clock_ = &clock; }
 
@@ -95,6 +100,8 @@ class ImpairedStream final : public hal::ByteStream {
   HostPort& port_;
   const hal::Clock* clock_ = nullptr;
   ClockMap map_;
+  uint64_t frame_anchor_ns_;  // USB frames are counted from here [monotonic ns]
+  [[nodiscard]] uint64_t next_frame_ns(uint64_t ns, uint64_t frame_ns) const;
   LinkImpairment impairment_{};
   std::mt19937_64 rng_;
   std::deque<Timed> to_host_;

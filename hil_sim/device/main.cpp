@@ -269,6 +269,20 @@ int main(int argc, char** argv) {
       g_stop = 1;
       return "ok";
     }
+    if (cmd == "origin") {
+      // origin T0_NS DEVICE_OFFSET_US UTC0_US: scenario time starts anew at T0_NS (a session that held
+      // its clock until the recorder was up). The caller keeps the device clock and UTC continuous.
+      unsigned long long t0 = 0;
+      double offset_us = 0.0;
+      long long utc0 = 0;
+      if (!(in >> t0 >> offset_us >> utc0) || t0 == 0) return "error: origin T0_NS DEVICE_OFFSET_US UTC0_US";
+      map.t0_monotonic_ns = t0;
+      map.device_offset_us = offset_us;
+      link.set_clock_map(map);
+      opt.utc0_us = utc0;
+      next_pps_utc_s = utc0 / 1'000'000 + 1;
+      return "ok";
+    }
     if (cmd == "manual_shot") {
       board.camera().manual_shot(board.clock().now_us() + 1000);
       return "ok";

@@ -29,7 +29,7 @@ from pymavlink import mavutil
 from icgt.errors import IcgtError
 from icgt.sim.evaluate import evaluate, read_frames, read_truth
 from icgt.sim.scenario import Camera, Scenario, load_scenario
-from icgt.sim.session import SimSession
+from icgt.sim.session import HOLD_MAX_S, SimSession
 
 GCS_SYSTEM = 255
 GCS_COMPONENT = 190
@@ -180,6 +180,7 @@ class Flight:
     gcs: GroundStation
     recorder_cpu_s: float  # user + system CPU time of the recorder process over the flight
     recorder_wall_s: float
+    held_s: float = 0.0  # how long the simulator held its scenario clock for the recorder to come up [s]
 
 
 def _cpu_seconds(pid: int) -> float:
@@ -188,10 +189,15 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def fly(sc: Scenario, out_dir: Path, record_args: Sequence[str] = ()) -> Flight:
+def fly(sc: Scenario, out_dir: Path, record_args: Sequence[str] = (), *, recorder_delay_s: float = 0.0) -> Flight:
     """Run one scenario: simulator, `icgt record` as a separate process, a ground station commanding it.
 
-    `record_args`: more arguments for `icgt record` (e.g. ``--live PORT``)."""
+    The simulator holds its scenario clock until the ground station sees the recorder's camera (and it
+    has answered CAMERA_INFORMATION where that matters), so the scenario and the ground station's
+    schedule in it run whole however long the recorder takes to come up (`SimSession.release`).
+    `record_args`: more arguments for `icgt record` (e.g. ``--live PORT``).
+    `recorder_delay_s`: start the recorder that much later (a test of a slow start) [s].
+    """
     out_dir = out_dir.resolve()
     for stale in ("sim", "recording"):
         shutil.rmtree(out_dir / stale, ignore_errors=True)
@@ -200,10 +206,11 @@ def fly(sc: Scenario, out_dir: Path, record_args: Sequence[str] = ()) -> Flight:
     config_path = out_dir / "recorder.toml"
     config_path.write_text(recorder_config_text(sc, rec_dir))
     mav_port, gcs_port = free_udp_port(), free_udp_port()
-    session = SimSession(sc, out_dir / "sim", mavlink_port=mav_port, gcs_port=gcs_port)
+    session = SimSession(sc, out_dir / "sim", mavlink_port=mav_port, gcs_port=gcs_port, hold=True)
     urls = session.start()
     log_path = out_dir / "recorder.log"
     recorder_log = log_path.open("w")
+    time.sleep(recorder_delay_s)
     recorder = subprocess.Popen(
         [sys.executable, "-m", "icgt.cli", "record", "--config", str(config_path), "--device", urls.device,
          "--mavlink", urls.mavlink, "--out", str(rec_dir), "--socket", str(out_dir / "recorder.sock"), *record_args],
@@ -211,14 +218,14 @@ def fly(sc: Scenario, out_dir: Path, record_args: Sequence[str] = ()) -> Flight:
     )  # fmt: skip
     gcs = GroundStation(urls.gcs, sc.autopilot.system_id)
     started = time.monotonic()
-    cpu_s = wall_s = 0.0
+    cpu_s = wall_s = held_s = 0.0
     try:
         print(f"recorder: icgt record --device {urls.device} --mavlink {urls.mavlink}", flush=True)
         cap = sc.camera.capture
         # Like QGroundControl: talk to the camera once its HEARTBEAT has been seen. With a second camera at
         # component 100 of the vehicle (scenario foreign_camera) a HEARTBEAT does not say which one is ours:
         # then wait until ours has answered CAMERA_INFORMATION (the foreign one only sends HEARTBEATs).
-        deadline = time.monotonic() + 15.0
+        deadline = time.monotonic() + HOLD_MAX_S - 10.0  # a recorder that slow would start late anyway
         while not gcs.camera_seen and time.monotonic() < deadline:
             gcs.pump(0.2)
         if not gcs.camera_seen:
@@ -232,6 +239,8 @@ def fly(sc: Scenario, out_dir: Path, record_args: Sequence[str] = ()) -> Flight:
             gcs.pump(0.1)
         if sc.autopilot.foreign_camera and gcs.camera_info is None:
             raise IcgtError(f"the recorder's camera never answered CAMERA_INFORMATION; see {log_path}")
+        held_s = session.release()
+        print(f"simulator: scenario clock held {held_s:.1f} s until the recorder's camera was seen", flush=True)
         gcs.pump(max(0.2, cap.start_s - session.tau_s))
         interval_s = cap.interval_ms / 1000.0 if cap.mode == "interval" else 1.0 / cap.burst_fps
         print(f"ground station: start capture at tau {session.tau_s:.1f} s", flush=True)
@@ -268,6 +277,7 @@ def fly(sc: Scenario, out_dir: Path, record_args: Sequence[str] = ()) -> Flight:
         gcs,
         cpu_s,
         wall_s,
+        held_s,
     )
 
 

@@ -56,10 +56,11 @@ compares the two), so every guarantee above is kept. The offset searches around 
 were but cost less: a scanned offset is first costed by forward passes alone, stopped as soon as it
 exceeds the margin (or, when settling, the least cost found so far), and only a rival within the
 margin is solved in full; one-image segments are solved in closed form, small segments remembered
-across offsets, windows found by vectorised searches. Chosen over cutting the card at bursts and
-gaps, which alone does not bound a segment (the chaining above), and over a streaming alignment,
-which cannot give the cost of the best alignment *without* each pair (the backward pass) that the
-ambiguity test rests on. Measured by benchmarks/match_scaling.py against reading the EXIF alone.
+across offsets, windows found by vectorised searches, an image whose only exposure within the margin
+is the optimum's paired without the general bookkeeping, the clock fitted on arrays. Chosen over
+cutting the card at bursts and gaps, which alone does not bound a segment (the chaining above), and
+over a streaming alignment, which cannot give the cost of the best alignment *without* each pair (the
+backward pass) that the ambiguity test rests on. Measured by benchmarks/match_scaling.py against reading the EXIF alone.
 
 Limits: two unexplained events that cancel within one EXIF second (an image lost from the card
 and an extra shot) are indistinguishable from none; the default tolerance (20 ms beyond the

@@ -10,6 +10,7 @@ ground-truth files and a camera card of JPEGs.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import shutil
 import signal
@@ -33,6 +34,11 @@ from icgt.sim.truth import (
     write_sensor_truth,
 )
 
+HOLD_MAX_S = 120.0
+"""How long a session started with `hold=True` can wait for `release()` before its scenario starts anyway [s]."""
+RELEASE_LEAD_S = 0.3
+"""Scenario time 0 is this far after `release()` (and after `start()` without a hold) [s]."""
+
 
 def find_device_binary() -> Path:
     """The simulated device program: $ICGT_SIM_DEVICE, the wheel's copy, else the checkout's CMake build."""
@@ -43,6 +49,19 @@ def find_device_binary() -> Path:
     raise SimError(
         f"{DEVICE_PROGRAM} not found (looked at {', '.join(str(c) for c in candidates)}): in a checkout run "
         f"`make build`; else install icgt from its wheel (which builds it), or set {DEVICE_BINARY_ENV} to the program"
+    )
+
+
+def shifted_origin(clocks: ClockMaps, shift_ns: int) -> ClockMaps:
+    """The same clocks with scenario time 0 `shift_ns` later: every offset moves along, so the device,
+    autopilot and UTC clocks read the same at each host instant (the camera's is set from UTC at tau = 0)."""
+    shift_s = shift_ns * 1e-9
+    return dataclasses.replace(
+        clocks,
+        t0_monotonic_ns=clocks.t0_monotonic_ns + shift_ns,
+        utc0_us=clocks.utc0_us + shift_ns // 1000,
+        device_offset_us=clocks.device_offset_us + shift_s * 1e6 * (1.0 + clocks.device_drift_ppm * 1e-6),
+        autopilot_offset_us=clocks.autopilot_offset_us + shift_s * 1e6 * (1.0 + clocks.autopilot_drift_ppm * 1e-6),
     )
 
 
@@ -77,7 +96,9 @@ class SimSession:
         gcs_port: int = 14551,
         device_link: str = "pty",
         device_binary: Path | None = None,
+        hold: bool = False,
     ) -> None:
+        """`hold`: the scenario clock waits for `release()` (see there); without it, it starts with `start()`."""
         self.scenario = scenario
         self.out_dir = out_dir
         self._mavlink_port = mavlink_port
@@ -100,6 +121,10 @@ class SimSession:
         self._control_path = Path(f"/tmp/icgt-sim-{os.getpid()}-{id(self)}.sock")
         self._faults: list[threading.Timer] = []
         self._stopped = False
+        self._hold = hold
+        self._started_ns = 0
+        self.held_s: float | None = None
+        """How long the scenario clock was held (None: not held, or not released yet) [s]."""
 
     def __enter__(self) -> SimSession:
         self.start()
@@ -117,19 +142,25 @@ class SimSession:
     def start(self) -> SessionUrls:
         self.out_dir.mkdir(parents=True, exist_ok=True)
         sc = self.scenario
-        t0 = time.monotonic_ns() + 300_000_000  # the origin is set a little ahead so every part starts before it
-        utc0_us = time.time_ns() // 1000 + 300_000
+        lead_ns = round(RELEASE_LEAD_S * 1e9)  # the origin is set a little ahead so every part starts before it
+        t0 = time.monotonic_ns() + lead_ns
+        utc0_us = time.time_ns() // 1000 + lead_ns // 1000
         self.clocks = ClockMaps.from_scenario(sc, t0, utc0_us)
+        if self._hold:
+            # Held: the origin goes HOLD_MAX_S further ahead, every clock's offset along with it, so that
+            # each reads what it would without the hold. Until release() all parts run before tau = 0,
+            # as they do for RELEASE_LEAD_S in any session: the vehicle at its starting pose, no fix yet.
+            self.clocks = shifted_origin(self.clocks, round(HOLD_MAX_S * 1e9))
         write_sensor_truth(sc, self.files.sensor_truth)
         link_arg = "pty:" + str(self.out_dir / "device") if self._device_link == "pty" else self._device_link
         cam = sc.camera
         cmd = [
             str(self._binary),
             "--truth", str(self.files.sensor_truth),
-            "--t0-monotonic-ns", str(t0),
-            "--utc0-us", str(utc0_us),
+            "--t0-monotonic-ns", str(self.clocks.t0_monotonic_ns),
+            "--utc0-us", str(self.clocks.utc0_us),
             "--link", link_arg,
-            "--device-offset-us", str(sc.clocks.device.offset_us),
+            "--device-offset-us", repr(float(self.clocks.device_offset_us)),
             "--device-drift-ppm", str(sc.clocks.device.drift_ppm),
             "--camera-latency-us", str(cam.shutter_latency_us),
             "--camera-jitter-us", str(cam.shutter_jitter_us),
@@ -173,8 +204,39 @@ class SimSession:
             mavlink=f"udpin:0.0.0.0:{self._mavlink_port}",
             gcs=f"udpout:127.0.0.1:{self._gcs_port}",
         )
-        self._schedule_faults()
+        if not self._hold:
+            self._schedule_faults()
+        self._started_ns = time.monotonic_ns()
         return self.urls
+
+    def release(self) -> float:
+        """Start the scenario clock of a held session: tau = 0 comes RELEASE_LEAD_S from now.
+
+        For tests whose schedule is in scenario time but whose recorder takes a while to come up (a
+        loaded machine): held until then, the scenario runs whole and exactly as written, trajectory,
+        faults and capture schedule alike, however late the recorder was. Every clock runs on without a
+        step (the device's, the autopilot's, UTC): what moves is only the instant that is tau = 0, so
+        each clock's reading at tau = 0 is larger by the time held (a board booted that much earlier).
+        The truth is written with the clocks in force from here on (`clocks`), which are those every
+        part uses from here on: exact. Returns the time held [s]; a session not held, released already,
+        or held past HOLD_MAX_S (its scenario then started by itself) is left as it is (0.0).
+        """
+        assert self.clocks is not None and self._autopilot is not None
+        lead_ns = round(RELEASE_LEAD_S * 1e9)
+        now = time.monotonic_ns()
+        if not self._hold or self.held_s is not None or now + lead_ns >= self.clocks.t0_monotonic_ns:
+            if self._hold and self.held_s is None:
+                self.held_s = 0.0
+                self._schedule_faults()
+            return 0.0
+        shift_ns = (now + lead_ns - self.clocks.t0_monotonic_ns) // 1000 * 1000  # whole us: UTC stays exact
+        clocks = shifted_origin(self.clocks, shift_ns)
+        self.device_command(f"origin {clocks.t0_monotonic_ns} {clocks.device_offset_us!r} {clocks.utc0_us}")
+        self.clocks = clocks
+        self._autopilot.clocks = clocks
+        self.held_s = (now - self._started_ns) * 1e-9
+        self._schedule_faults()
+        return self.held_s
 
     def _schedule_faults(self) -> None:
         sc = self.scenario

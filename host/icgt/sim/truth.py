@@ -55,9 +55,9 @@ class ClockMaps:
 
     t0_monotonic_ns: int
     utc0_us: int
-    device_offset_us: int = 0
+    device_offset_us: float = 0.0
     device_drift_ppm: float = 0.0
-    autopilot_offset_us: int = 0
+    autopilot_offset_us: float = 0.0
     autopilot_drift_ppm: float = 0.0
     camera_offset_s: float = 0.0
     camera_drift_ppm: float = 0.0

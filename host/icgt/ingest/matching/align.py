@@ -94,28 +94,43 @@ def segments(
 
     Ranges made monotone (a camera numbers in time order): an image may not start before the latest
     start of the images before it (a running maximum; an image whose range then closes is extra).
-    Segments where ranges overlap: a new one starts past the greatest end so far."""
+    Segments where ranges overlap: a new one starts past the greatest end so far. The last answer is
+    remembered (a cost-only pass is often followed by the full solve of the same model); callers only
+    read what is returned."""
+    key = (model.offset, model.drift, widen)
+    if fr.last_segments is not None and fr.last_segments[0] == key:
+        known: tuple[Cands, list[tuple[int, int] | None], Segments, list[int]] = fr.last_segments[1]
+        return known
+    found = _segments(card, fr, model, widen)
+    fr.last_segments = (key, found)
+    return found
+
+
+def _segments(
+    card: Card, fr: Frames, model: Model, widen: float
+) -> tuple[Cands, list[tuple[int, int] | None], Segments, list[int]]:
     cands, ranges = windows(card, fr, model, widen)
     n = len(card)
-    with_range = [i for i in range(n) if ranges[i] is not None]
+    present = [r for r in ranges if r is not None]
     segs: Segments = []
     extra: list[int] = []
-    if with_range:
-        r0 = np.array([ranges[i][0] for i in with_range], dtype=np.int64)  # type: ignore[index]
-        r1 = np.array([ranges[i][1] for i in with_range], dtype=np.int64)  # type: ignore[index]
+    if present:
+        with_range = np.flatnonzero(np.fromiter((r is not None for r in ranges), dtype=bool, count=n))
+        r01 = np.array(present, dtype=np.int64)
+        r0, r1 = r01[:, 0], r01[:, 1]
         lo_adj = np.maximum.accumulate(r0)
         kept = lo_adj <= r1
-        extra = np.asarray(with_range)[~kept].tolist()
+        extra = with_range[~kept].tolist()
         for i in extra:
             ranges[i] = None
-        ki = np.asarray(with_range)[kept]
+        ki = with_range[kept]
         klo, khi = lo_adj[kept], r1[kept]
         reach = np.maximum.accumulate(khi)
         starts = np.flatnonzero(np.concatenate([[True], klo[1:] > reach[:-1]])) if len(ki) else np.zeros(0, int)
         ends = np.concatenate([starts[1:], [len(ki)]]).astype(np.int64)
         ki_l, klo_l, khi_l, reach_l = ki.tolist(), klo.tolist(), khi.tolist(), reach.tolist()
-        for k, i in enumerate(ki_l):
-            ranges[i] = (klo_l[k], khi_l[k])
+        for i, a, b in zip(ki_l, klo_l, khi_l, strict=True):
+            ranges[i] = (a, b)
         for s0, s1 in zip(starts.tolist(), ends.tolist(), strict=True):
             segs.append((ki_l[s0:s1], klo_l[s0], reach_l[s1 - 1]))
     return cands, ranges, segs, extra
@@ -311,15 +326,19 @@ def solve_segment(
         ar, br = band_a[r], band_b[r]
         an = band_a[r + 1]
         fr_row, g_row = f[r], g[r + 1]
-        with_pair = {bb + lo: fr_row[bb - ar] + g_row[bb + 1 - an] for bb in pair[r]}
+        cols = pair[r]
+        vals = [fr_row[bb - ar] + g_row[bb + 1 - an] for bb in cols]
         # the best alignment leaving image r out: min over columns of f[r] + g[r + 1]; outside
         # [A_{r+1}, B_r] both sides only add frame skips, so the minimum lies inside
         with_skip = min(map(operator.add, fr_row[an - ar : br - ar + 1], g_row[: br - an + 1])) + si
-        if len(with_pair) == 1 and with_skip > limit:
-            ((j, v),) = with_pair.items()
-            if abs(v - opt) < 1e-9:  # the usual case: one exposure fits and leaving it costs too much
-                out.pairs[imgs[r]] = j
+        if with_skip > limit:
+            near_k = [k for k, v in enumerate(vals) if v <= limit]
+            if len(near_k) == 1 and abs(vals[near_k[0]] - opt) < 1e-9:
+                # the usual case: one exposure fits within the margin, it is the optimum's, and leaving
+                # the image out costs too much (what `_decide` concludes, without its bookkeeping)
+                out.pairs[imgs[r]] = cols[near_k[0]] + lo
                 continue
+        with_pair = {bb + lo: v for bb, v in zip(cols, vals, strict=True)}
         # The optimum's own pairing of image r. Where several alignments are optimal any of them will
         # do: the image is then ambiguous whichever is taken (the others are within the margin).
         mine = next((j for j, v in with_pair.items() if abs(v - opt) < 1e-9), None)

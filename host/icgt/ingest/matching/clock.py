@@ -5,21 +5,24 @@ from __future__ import annotations
 import numpy as np
 
 from icgt.ingest.matching.results import ImageTime
-from icgt.ingest.matching.state import Frames, Model
+from icgt.ingest.matching.state import Card, Frames, Model
 
 DRIFT_REPORT_PPM = 20.0
 """The drift is reported when drifts this far from the fit explain the pairs clearly worse."""
 
 
-def fit(times: list[ImageTime], fr: Frames, pairs: dict[int, int], prior: Model, max_drift_ppm: float) -> Model:
+def fit(card: Card, fr: Frames, pairs: dict[int, int], prior: Model, max_drift_ppm: float) -> Model:
     """Offset and drift from the confident timed pairs: weighted least squares, drift with a weak prior."""
-    rows = [(float(fr.x[j]), times[i]) for i, j in pairs.items() if times[i].time_s is not None]
-    if not rows:
+    ii = np.fromiter(pairs.keys(), dtype=np.int64, count=len(pairs))
+    jj = np.fromiter(pairs.values(), dtype=np.int64, count=len(pairs))
+    timed = ~np.isnan(card.c[ii])
+    ii, jj = ii[timed], jj[timed]
+    if len(ii) == 0:
         return prior
-    x = np.array([r[0] for r in rows])
-    ref = float(rows[0][1].time_s or 0.0)  # camera times are ~1e9 s: work relative to one of them
-    c = np.array([r[1].time_s for r in rows], dtype=np.float64) - ref
-    res = np.array([r[1].resolution_s for r in rows], dtype=np.float64)
+    x = fr.x[jj]
+    ref = float(card.c[ii[0]])  # camera times are ~1e9 s: work relative to one of them
+    c = card.c[ii] - ref
+    res = card.r[ii]
     y = c + res / 2.0 - x  # camera minus recording time: o + d x
     w = 1.0 / (res**2 / 12.0 + 1e-6)
     sd = max_drift_ppm * 1e-6 / 2.0
@@ -37,7 +40,7 @@ def fit(times: list[ImageTime], fr: Frames, pairs: dict[int, int], prior: Model,
     # is concave in d: maximise it (ties broken towards no drift, which a short flight cannot tell from
     # a small one), then take the middle. Truncated EXIF times pin the clock far better
     # through the seconds' boundaries than least squares on their centres does.
-    tol = np.array([fr.tol[j] for i, j in pairs.items() if times[i].time_s is not None], dtype=np.float64)
+    tol = fr.tol[jj]
     lo_b, hi_b = c - tol - x, c + res + tol - x
     span = float(x.max() - x.min()) if len(x) else 0.0
 
@@ -81,15 +84,20 @@ def offset_candidates(times: list[ImageTime], fr: Frames, widen: float, keep: in
     c_sorted = np.sort(c)
     r_max = float(r.max())
 
+    # Sentinels past the end: "the first element at or after the window's start lies inside it" is then
+    # one search and one look-up per window (the same count as two searches, at half the cost).
+    # The images in time order too (a count does not depend on the order; sorted keys search faster).
+    xe_end = np.append(xe, np.inf)
+    c_end = np.append(c_sorted, np.inf)
+    r_by_c = r[np.argsort(c, kind="stable")]
+
     def score(o: float, slack: float = 0.0) -> int:
         t = tol + slack
-        lo = np.searchsorted(xe, c - o - t, side="left")
-        hi = np.searchsorted(xe, c + r - o + t, side="right")
-        images = int(np.count_nonzero(hi > lo))
+        lo = np.searchsorted(xe, c_sorted - o - t, side="left")
+        images = int(np.count_nonzero(xe_end[lo] <= c_sorted + r_by_c - o + t))
         pe = xe + o
         a = np.searchsorted(c_sorted, pe - r_max - t, side="left")
-        b = np.searchsorted(c_sorted, pe + t, side="right")
-        return images + int(np.count_nonzero(b > a))
+        return images + int(np.count_nonzero(c_end[a] <= pe + t))
 
     step = max(1, len(timed) // 40)
     sample = np.arange(0, len(timed), step)[:40]

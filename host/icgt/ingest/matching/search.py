@@ -32,7 +32,7 @@ def refine(
 
     for w in (widen, widen, widen / 2.0, 0.0) if widen > 0 else (0.0, 0.0):
         outcome = solve_once(model, w)
-        model = fit(card.times, fr, outcome.pairs, model, max_drift_ppm)
+        model = fit(card, fr, outcome.pairs, model, max_drift_ppm)
     if (
         (model.offset, model.drift, 0.0) not in solved
         and give_up_above < math.inf

@@ -42,6 +42,7 @@ class Frames:
     eligible_prefix: IntArray = field(default_factory=lambda: np.zeros(1, dtype=np.int64))
     cache: dict[tuple[Any, ...], Outcome] = field(default_factory=dict)  # solved small segments
     cost_cache: dict[tuple[Any, ...], float] = field(default_factory=dict)  # their costs alone
+    last_segments: tuple[tuple[float, float, float], Any] | None = None  # align.segments' last answer
 
 
 @dataclass

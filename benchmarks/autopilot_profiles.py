@@ -111,7 +111,7 @@ def run(profile: str, rate_hz: float, timesync: bool, out: Path) -> dict[str, An
     frames = read_frames(flight.mcap)
     truth = read_truth(flight.truth_exposures)
     result = evaluate(sc, frames, truth)
-    timing = autopilot_timing(sc, frames, truth, replayed_autopilot_times(flight.mcap))
+    timing = autopilot_timing(sc, frames, truth, replayed_autopilot_times(flight.mcap), flight.clocks)
     poses = pose_report(frames)
     return {
         "profile": profile,

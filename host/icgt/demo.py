@@ -30,6 +30,7 @@ from icgt.errors import IcgtError
 from icgt.sim.evaluate import evaluate, read_frames, read_truth
 from icgt.sim.scenario import Camera, Scenario, load_scenario
 from icgt.sim.session import HOLD_MAX_S, SimSession
+from icgt.sim.truth import ClockMaps
 
 GCS_SYSTEM = 255
 GCS_COMPONENT = 190
@@ -181,6 +182,7 @@ class Flight:
     recorder_cpu_s: float  # user + system CPU time of the recorder process over the flight
     recorder_wall_s: float
     held_s: float = 0.0  # how long the simulator held its scenario clock for the recorder to come up [s]
+    clocks: ClockMaps | None = None  # the simulator's clock maps in force from the release on (the truth's)
 
 
 def _cpu_seconds(pid: int) -> float:
@@ -278,6 +280,7 @@ def fly(sc: Scenario, out_dir: Path, record_args: Sequence[str] = (), *, recorde
         cpu_s,
         wall_s,
         held_s,
+        session.clocks,
     )
 
 

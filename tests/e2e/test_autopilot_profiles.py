@@ -46,7 +46,7 @@ class Scored:
         self.truth = read_truth(flight.truth_exposures)
         self.result = evaluate(self.sc, self.frames, self.truth)
         self.mapped = replayed_autopilot_times(flight.mcap)
-        self.timing = autopilot_timing(self.sc, self.frames, self.truth, self.mapped)
+        self.timing = autopilot_timing(self.sc, self.frames, self.truth, self.mapped, flight.clocks)
         self.poses = pose_report(self.frames)
         by_start = {int(t["start_device_us"]): t for t in self.truth}
         self.tau = {fr["frame_seq"]: float(by_start[int(fr["start_device_us"])]["mid_tau_s"]) for fr in self.frames

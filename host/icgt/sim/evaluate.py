@@ -20,6 +20,7 @@ from icgt.geodesy import LocalFrame
 from icgt.recording import RecordingError, layout
 from icgt.sim.scenario import Scenario
 from icgt.sim.trajectory import Trajectory
+from icgt.sim.truth import ClockMaps
 
 _POSE_FLAGS = {"stale_pose", "pose_extrapolated", "no_fix", "no_attitude", "clock_unsynced"}
 
@@ -154,17 +155,21 @@ def _speed_at(traj: Trajectory, tau_s: float) -> float:
 
 
 def autopilot_timing(
-    scenario: Scenario, frames: list[dict[str, Any]], truth: list[dict[str, Any]], mapped: dict[int, float]
+    scenario: Scenario,
+    frames: list[dict[str, Any]],
+    truth: list[dict[str, Any]],
+    mapped: dict[int, float],
+    clocks: ClockMaps | None = None,
 ) -> dict[str, Any]:
     """Error of mid-exposure on the autopilot's clock (device -> host -> autopilot, all of it) per frame.
 
     ``mapped`` is `replayed_autopilot_times`. The true instant is the autopilot boot time at the true
-    mid-exposure (the scenario's autopilot clock). The timing part of the geotag error is that error
+    mid-exposure (the scenario's autopilot clock; ``clocks``: the session's maps, `Flight.clocks`, which a
+    held session moved by the time it held). The timing part of the geotag error is that error
     times the true speed.
     """
-    from icgt.sim.truth import ClockMaps
-
-    clocks = ClockMaps.from_scenario(scenario, 0, 0)  # the autopilot clock does not depend on t0 or utc0
+    if clocks is None:  # a session that was not held: the autopilot clock does not depend on t0 or utc0
+        clocks = ClockMaps.from_scenario(scenario, 0, 0)
     by_start = {int(t["start_device_us"]): t for t in truth}
     traj = Trajectory(scenario)
     err_ms: list[float] = []

@@ -331,7 +331,8 @@ def stream_cases() -> list[Case]:
     answer.add(m.Pps(t_us=t, pps_count=5), 100).add(m.Range(acq_start_t_us=t + 10, read_t_us=t + 20), 101)
     answer.add(m.Imu(read_start_t_us=t + 900, read_end_t_us=t + 1900, quat_w=1.0), 106)
     answer.add(
-        m.Exposure(image_index=31, trigger_t_us=t + 100, feedback_start_t_us=t + 140, feedback_end_t_us=t + 150), 102,
+        m.Exposure(image_index=31, trigger_t_us=t + 100, feedback_start_t_us=t + 140, feedback_end_t_us=t + 150),
+        102,
         flags=retx_flag,
     )
     answer.add(m.Pps(t_us=t + 1_000_000, pps_count=6), 104, flags=retx_flag)

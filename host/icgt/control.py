@@ -133,7 +133,9 @@ class ControlServer:
                 if uid not in (os.getuid(), 0):
                     log.warning("control request from uid %d refused (this recorder runs as uid %d)", uid, os.getuid())
                     with contextlib.suppress(OSError):
-                        conn.sendall((json.dumps({"error": f"uid {uid} may not control this recorder"}) + "\n").encode())
+                        conn.sendall(
+                            (json.dumps({"error": f"uid {uid} may not control this recorder"}) + "\n").encode()
+                        )
                     continue
                 try:
                     line = conn.makefile("r", encoding="utf-8").readline()

@@ -40,6 +40,7 @@ _Lon = Annotated[float, Meta(ge=-180.0, le=180.0)]
 
 _NEVER_US = 1 << 62  # a backstep no device clock makes
 
+
 class DeviceClock(Protocol):
     """Device clock [us] -> host CLOCK_MONOTONIC [ns] (icgt.clocks.DeviceClockFilter)."""
 

@@ -337,6 +337,8 @@ class DeviceLink:
         self.send(message)  # DeviceLinkError when down: the tracker asks again later
 
     def _history_lost(self, r: LossReport) -> None:
+        if r.exposures + r.pps + r.samples + r.unknown == 0:
+            return  # only STATUS/ACK/LOG frames, which the device never keeps: counted, not worth an event
         detail = (
             f"device frames {r.first_seq}..{(r.first_seq + r.count - 1) & 0xFFFFFFFF} not recoverable "
             f"({r.resent} came back): {r.exposures} exposures, {r.pps} PPS, {r.samples} samples, "

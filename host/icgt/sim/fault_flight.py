@@ -98,15 +98,16 @@ def _start_recorder(config: Path, urls: Any, sock: Path, log: Any) -> subprocess
          "--mavlink", urls.mavlink, "--socket", str(sock)],
         stdout=log, stderr=subprocess.STDOUT,
     )  # fmt: skip
-    deadline = time.monotonic() + 20
+    log.flush()
+    path = Path(log.name)
+    started = path.read_text().count("recording to ")
+    deadline = time.monotonic() + 30
     while time.monotonic() < deadline:
-        try:
-            request(sock, {"command": "status"}, timeout_s=1.0)
+        if path.read_text().count("recording to ") > started:  # `icgt record` says so when start() is done
             return proc
-        except Exception:  # not up yet
-            if proc.poll() is not None:
-                raise RuntimeError(f"icgt record exited with {proc.returncode}; see {log.name}") from None
-            time.sleep(0.2)
+        if proc.poll() is not None:
+            raise RuntimeError(f"icgt record exited with {proc.returncode}; see {log.name}")
+        time.sleep(0.1)
     raise RuntimeError(f"icgt record did not come up; see {log.name}")
 
 

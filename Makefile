@@ -86,6 +86,7 @@ bench: venv build
 	$(PY) benchmarks/geotag_write.py
 	$(PY) benchmarks/recorder_cpu.py --out bench-out/recorder_cpu
 	$(PY) benchmarks/damage_map.py --skip-1h
+	$(PY) benchmarks/resend_faults.py --out bench-out/resend_faults
 
 clean:
 	rm -rf build $(VENV) demo-out

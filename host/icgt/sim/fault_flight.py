@@ -12,6 +12,7 @@ benchmarks/resend_faults.py.
 from __future__ import annotations
 
 import json
+import shutil
 import signal
 import subprocess
 import sys
@@ -116,6 +117,8 @@ def fly_faults(sc: Scenario, plan: FaultPlan, out: Path) -> FlightResult:
     from icgt.recording import recover
 
     out.mkdir(parents=True, exist_ok=True)
+    for previous in ("recording", "sim", "ctl"):  # a folder reused (make bench): only this flight's files count
+        shutil.rmtree(out / previous, ignore_errors=True)
     session = SimSession(sc, out / "sim", mavlink_port=free_udp_port(), gcs_port=free_udp_port())
     urls = session.start()
     rec_dir = out / "recording"

@@ -47,7 +47,7 @@ struct OutboxCounters {
 
 class Outbox {
  public:
-  static constexpr std::size_t kEventCapacity = 64;   // 12 s of 5 fps exposures with the link gone
+  static constexpr std::size_t kEventCapacity = 64;   // 12 s of 5 fps exposures with a host not reading
   static constexpr std::size_t kImuCapacity = 16;     // 160 ms at 100 Hz
   static constexpr std::size_t kRangeCapacity = 64;   // 128 ms at 500 Hz
   static constexpr std::size_t kLogCapacity = 8;

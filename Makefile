@@ -87,6 +87,7 @@ bench: venv build
 	$(PY) benchmarks/recorder_cpu.py --out bench-out/recorder_cpu
 	$(PY) benchmarks/damage_map.py --skip-1h
 	$(PY) benchmarks/mavsdk_camera.py --out bench-out/mavsdk_camera
+	$(PY) benchmarks/resend_faults.py --out bench-out/resend_faults
 
 clean:
 	rm -rf build $(VENV) demo-out

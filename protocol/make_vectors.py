@@ -221,6 +221,30 @@ def typical_cases() -> list[Case]:
         m.SetTime(utc_us=1_795_000_000_250_000),
         m.Ping(nonce=0xDEADBEEF),
         m.Resend(first_seq=1000, count=16),
+        m.ResendLost(first_seq=1000, count=16, resent=9, exposures=1, pps=0, samples=4, other=2, unknown=0),
+        m.DeviceState(
+            t_us=t0,
+            capture_state=m.CaptureState.CAPTURING,
+            mode=m.CaptureMode.INTERVAL,
+            interval_us=200_000,
+            count=0,
+            focus_lead_us=0,
+            burst_us=0,
+            shutter_pulse_us=20_000,
+            triggers_fired=311,
+            capture_start_seq=4_000,
+            next_seq=95_123,
+            history_first_seq=0,
+            host_received_seq=94_000,
+            host_received_valid=1,
+            imu_rate_hz=100,
+            range_rate_hz=200,
+            lidar_model=m.LidarModel.V3,
+            polarity=0x0B,
+            feedback_enabled=1,
+            feedback_timeout_us=150_000,
+        ),
+        m.HostReceived(next_seq=94_000),
     ]
     covered = {type(x) for x in examples}
     missing = set(m.MESSAGE_TYPES.values()) - covered
@@ -298,6 +322,30 @@ def stream_cases() -> list[Case]:
     retx = Case("retransmit_keeps_expectation", True).add(m.Ping(nonce=1), 20)
     retx.add(m.Ping(nonce=2), 7, flags=m.FrameFlags.RETRANSMIT).add(m.Ping(nonce=3), 21)
     cases.append(retx)
+
+    # A device's answer to RESEND(first_seq=102, count=4) after a gap of 102..105: two frames come back
+    # flagged retransmit with their original seq (moving no expectation), the rest is counted gone.
+    retx_flag = m.FrameFlags.RETRANSMIT
+    answer = Case("resend_answer", True)
+    t = 5_000_000
+    answer.add(m.Pps(t_us=t, pps_count=5), 100).add(m.Range(acq_start_t_us=t + 10, read_t_us=t + 20), 101)
+    answer.add(m.Imu(read_start_t_us=t + 900, read_end_t_us=t + 1900, quat_w=1.0), 106)
+    answer.add(
+        m.Exposure(image_index=31, trigger_t_us=t + 100, feedback_start_t_us=t + 140, feedback_end_t_us=t + 150),
+        102,
+        flags=retx_flag,
+    )
+    answer.add(m.Pps(t_us=t + 1_000_000, pps_count=6), 104, flags=retx_flag)
+    answer.add(m.ResendLost(first_seq=102, count=4, resent=2, samples=1, other=1), 107)
+    answer.add(m.Range(acq_start_t_us=t + 2000, read_t_us=t + 2100), 108)
+    answer.stats.update(seq_gaps=1, seq_missed=4)
+    cases.append(answer)
+
+    # Retransmits of a range older than everything live, one of them with the other flag bits set too.
+    old_retx = Case("retransmit_from_the_past", True).add(m.HostReceived(next_seq=0), 50)
+    old_retx.add(m.Exposure(image_index=2, trigger_t_us=10), 3, flags=retx_flag | 0x80)
+    old_retx.add(m.Exposure(image_index=3, trigger_t_us=20), 4, flags=retx_flag).add(m.Ping(nonce=9), 51)
+    cases.append(old_retx)
 
     reserved_flags = Case("unassigned_flag_bits_ignored", True).add(m.Ping(nonce=5), 0, flags=0xFE)
     cases.append(reserved_flags)

@@ -6,7 +6,13 @@
 #   - links against mps2.ld and prints flash = text + data and static RAM = data + bss
 #     (the stack is not counted: it is a reservation at the top of RAM, see mps2.ld), split
 #     into core (protocol + core + hal), probe (stubs + runtime) and C/C++ library;
-#   - FAILS if flash > 64 KiB or static RAM > 32 KiB (whole image, probe included);
+#   - FAILS if flash > 64 KiB or static RAM > 32 KiB plus the RESEND history (whole image, probe
+#     included), or if the whole static RAM exceeds what the board leaves for it (Teensy 3.6:
+#     200 KiB of its 256 KiB, the rest for Teensyduino's USB buffers and the stack; Teensy 4.1:
+#     448 KiB of the 512 KiB data-TCM RAM1, the rest is the code's ITCM banks and the stack).
+#     The history's rings are sized per board (firmware/lib/core/history.hpp): cortex-m4 builds
+#     the Teensy 3.6's, cortex-m7 the Teensy 4.1's; the figures are printed in bytes and minutes
+#     of 5 fps exposures (with PPS: 6 events per second);
 #   - FAILS if the image could allocate: malloc & co. are wrapped to symbols that do not
 #     exist (-Wl,--wrap), so any call fails the link naming its caller; then nm must find no
 #     allocator, no operator new and no operator delete in the image (the hal's destructors
@@ -47,12 +53,13 @@ HEAP_SYMBOLS_RE="^(__wrap_)?($(IFS='|'; echo "${HEAP_FUNCS[*]}")|_sbrk|_sbrk_r)\
 
 build_one() {
   local cpu="$1" fpu machine
+  local board board_ram_budget
   case "$cpu" in
-    cortex-m4) fpu=fpv4-sp-d16 machine=mps2-an386 ;;  # Teensy 3.6 (MK66FX1M0)
-    cortex-m7) fpu=fpv5-d16 machine=mps2-an500 ;;     # Teensy 4.1 (i.MX RT1062)
+    cortex-m4) fpu=fpv4-sp-d16 machine=mps2-an386 board=TEENSY36 board_ram_budget=$((200 * 1024)) ;;  # MK66FX1M0
+    cortex-m7) fpu=fpv5-d16 machine=mps2-an500 board=TEENSY41 board_ram_budget=$((448 * 1024)) ;;     # i.MX RT1062
     *) echo "unknown CPU $cpu (cortex-m4 or cortex-m7)" >&2; return 1 ;;
   esac
-  local arch=(-mcpu="$cpu" -mthumb -mfpu="$fpu" -mfloat-abi=hard)
+  local arch=(-mcpu="$cpu" -mthumb -mfpu="$fpu" -mfloat-abi=hard -DICGT_BOARD_$board)
   local out="$ROOT/build/cross/$cpu"
   rm -rf "$out"
   mkdir -p "$out/core" "$out/probe"
@@ -100,6 +107,17 @@ build_one() {
   echo "heap check: core references no heap function; image has no allocator, no operator new, no operator delete"
 
   # --- size and budgets -------------------------------------------------------------------
+  "$CXX" "${arch[@]}" "${CXXFLAGS[@]}" -c "$CROSS/history_size.cpp" -o "$out/history_size.o"
+  local history_bytes event_slots
+  read_u32() {
+    arm-none-eabi-objcopy -O binary --only-section=".rodata.$1" "$out/history_size.o" "$out/$1.bin"
+    od -An -tu4 "$out/$1.bin" | tr -d ' '
+  }
+  history_bytes="$(read_u32 icgt_history_bytes)"
+  event_slots="$(read_u32 icgt_history_event_slots)"
+  awk -v cpu="$cpu" -v b="$board" -v h="$history_bytes" -v e="$event_slots" 'BEGIN {
+    printf "%s (%s): RESEND history %d B (%.1f KiB), %d event slots = %.1f min of 5 fps exposures with PPS\n",
+           cpu, b, h, h / 1024, e, e / 6 / 60 }'
   arm-none-eabi-size "$elf"
   local text data bss flash ram
   read -r text data bss _ < <(arm-none-eabi-size "$elf" | awk 'NR == 2 {print $1, $2, $3}')
@@ -134,12 +152,18 @@ build_one() {
       name = $4; for (i = 5; i <= NF; ++i) name = name " " $i
       line[++k] = sprintf("  RAM %-34s %6d B", name, v) }
     END { for (i = k; i > k - 4 && i > 0; --i) print line[i] }'
-  awk -v cpu="$cpu" -v f="$flash" -v r="$ram" -v fb="$FLASH_BUDGET" -v rb="$RAM_BUDGET" 'BEGIN {
-    printf "%s: flash %d B (%.1f KiB of %d KiB), static RAM %d B (%.1f KiB of %d KiB), stack not included\n",
-           cpu, f, f / 1024, fb / 1024, r, r / 1024, rb / 1024 }'
+  awk -v cpu="$cpu" -v f="$flash" -v r="$ram" -v fb="$FLASH_BUDGET" -v rb="$RAM_BUDGET" -v h="$history_bytes" \
+      -v bb="$board_ram_budget" 'BEGIN {
+    printf "%s: flash %d B (%.1f KiB of %d KiB), static RAM %d B (%.1f KiB of %d KiB + the history, %d KiB for the board), stack not included\n",
+           cpu, f, f / 1024, fb / 1024, r, r / 1024, rb / 1024, bb / 1024 }'
   local over=0
   if [ "$flash" -gt "$FLASH_BUDGET" ]; then echo "FAIL: $cpu: flash $flash B > budget $FLASH_BUDGET B" >&2; over=1; fi
-  if [ "$ram" -gt "$RAM_BUDGET" ]; then echo "FAIL: $cpu: static RAM $ram B > budget $RAM_BUDGET B" >&2; over=1; fi
+  if [ "$ram" -gt $((RAM_BUDGET + history_bytes)) ]; then
+    echo "FAIL: $cpu: static RAM $ram B > budget $RAM_BUDGET B + history $history_bytes B" >&2; over=1
+  fi
+  if [ "$ram" -gt "$board_ram_budget" ]; then
+    echo "FAIL: $cpu: static RAM $ram B > what the $board leaves for it ($board_ram_budget B)" >&2; over=1
+  fi
   [ "$over" -eq 0 ] || return 1
 
   # --- boot under QEMU --------------------------------------------------------------------

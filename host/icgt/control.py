@@ -3,6 +3,13 @@
 A Unix-domain socket (never a network port: nothing off the companion computer can reach
 it) carrying one JSON object per line each way. The recorder serves it; the CLI commands
 are its clients.
+
+Local trust: the socket lives in a private directory ($XDG_RUNTIME_DIR, or `icgt-<uid>` in the
+system temp directory, created 0700) that must be a real directory owned by this user that group
+and others cannot write in; anything else (another user's pre-created directory, mode 0777, a symlink) is refused
+with what is wrong, by the server and by the client. The socket file is 0600. Each side checks the
+other's uid with SO_PEERCRED: a client talks only to a server running as the same user, the server
+answers only its own user (or root).
 """
 
 from __future__ import annotations
@@ -12,6 +19,9 @@ import json
 import logging
 import os
 import socket
+import stat
+import struct
+import tempfile
 import threading
 from collections.abc import Callable
 from pathlib import Path
@@ -32,8 +42,43 @@ class ControlError(IcgtError):
 
 def default_socket_path() -> Path:
     """Where a recorder listens unless told otherwise: the user's runtime directory."""
-    runtime = os.environ.get("XDG_RUNTIME_DIR") or f"/tmp/icgt-{os.getuid()}"
+    runtime = os.environ.get("XDG_RUNTIME_DIR") or str(Path(tempfile.gettempdir()) / f"icgt-{os.getuid()}")
     return Path(runtime) / "icgt-recorder.sock"
+
+
+def peer_uid(sock: socket.socket) -> int:
+    """The uid of the process at the other end of a connected Unix socket (SO_PEERCRED: pid, uid, gid)."""
+    creds = sock.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, struct.calcsize("3i"))
+    _pid, uid, _gid = struct.unpack("3i", creds)
+    return int(uid)
+
+
+def ensure_private_dir(path: Path, *, create: bool) -> None:
+    """The socket's directory: created 0700 if missing (and `create`), then refused unless it is a real
+    directory owned by this user that no group or other may write in (ControlError naming what is wrong):
+    whoever can write there can put their own socket in place of the recorder's."""
+    if create and not os.path.lexists(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with contextlib.suppress(FileExistsError):  # someone else may win the race: checked below
+            os.mkdir(path, 0o700)
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        raise ControlError(f"no recorder running (no control directory {path})") from None
+    me = os.getuid()
+    if stat.S_ISLNK(st.st_mode) or not stat.S_ISDIR(st.st_mode):
+        raise ControlError(f"control directory {path} is not a directory (a symlink or a file): refusing it")
+    if st.st_uid != me:
+        raise ControlError(
+            f"control directory {path} is owned by uid {st.st_uid}, not by you (uid {me}): refusing it "
+            "(remove it, or set XDG_RUNTIME_DIR)"
+        )
+    mode = stat.S_IMODE(st.st_mode)
+    if mode & 0o022:
+        raise ControlError(
+            f"control directory {path} has mode {mode:04o}: group or others may write in it; refusing it "
+            "(chmod 700 it, or remove it)"
+        )
 
 
 class ControlServer:
@@ -47,7 +92,7 @@ class ControlServer:
         self._stop = threading.Event()
 
     def start(self) -> None:
-        self.path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
+        ensure_private_dir(self.path.parent, create=True)
         if self.path.exists():
             if _answers(self.path):
                 raise ControlError(f"another recorder is already running (control socket {self.path})")
@@ -82,6 +127,17 @@ class ControlServer:
             with conn:
                 conn.settimeout(2.0)
                 try:
+                    uid = peer_uid(conn)
+                except OSError:
+                    uid = -1
+                if uid not in (os.getuid(), 0):
+                    log.warning("control request from uid %d refused (this recorder runs as uid %d)", uid, os.getuid())
+                    with contextlib.suppress(OSError):
+                        conn.sendall(
+                            (json.dumps({"error": f"uid {uid} may not control this recorder"}) + "\n").encode()
+                        )
+                    continue
+                try:
                     line = conn.makefile("r", encoding="utf-8").readline()
                     request = json.loads(line) if line else {}
                     reply = self._handler(request) if isinstance(request, dict) else {"error": "not a JSON object"}
@@ -105,11 +161,21 @@ def _answers(path: Path) -> bool:
 
 
 def request(path: Path, message: Request, *, timeout_s: float = 5.0) -> Reply:
-    """Send one request to the recorder at `path` and return its reply."""
+    """Send one request to the recorder at `path` and return its reply.
+
+    Refused (ControlError) when the socket's directory is not private to this user or the process
+    serving it runs as another user."""
+    ensure_private_dir(path.parent, create=False)
     try:
         with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
             sock.settimeout(timeout_s)
             sock.connect(str(path))
+            server = peer_uid(sock)
+            if server != os.getuid():
+                raise ControlError(
+                    f"the control socket {path} is served by uid {server}, not by you (uid {os.getuid()}): "
+                    "not sending it anything"
+                )
             sock.sendall((json.dumps(message) + "\n").encode())
             line = sock.makefile("r", encoding="utf-8").readline()
     except FileNotFoundError as exc:

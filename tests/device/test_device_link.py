@@ -47,6 +47,8 @@ from icgt.protocol.messages import (
     Hello,
     Message,
     Ping,
+    Resend,
+    ResendLost,
     StartCapture,
     Status,
     StopCapture,
@@ -538,17 +540,29 @@ def test_corrupt_bytes_give_frames_rejected_and_decoding_goes_on(host, device):
 
 
 def test_a_sequence_gap_is_reported_with_the_count(host, device):
-    with started(host, device):
+    with started(host, device) as link:
         device.send(Status(t_us=1))
         device.seq += 4  # four frames the host never sees
         device.send(Status(t_us=2))
+        first_missing = device.seq - 5
         (gap,) = host.wait(lambda: host.events_of("sequence_gap"))
-        assert gap.count == 4 and gap.detail == "4 device messages lost"
+        assert gap.count == 4 and gap.detail == "4 device messages missing: asked again"
+        # the host asks for exactly the missing four (RESEND)
+        (ask,) = host.wait(lambda: device.received_of(Resend))
+        assert (ask.message.first_seq, ask.message.count) == (first_missing, 4)
         # a retransmitted frame carries its old seq and moves no expectation
-        device.send(Status(t_us=3), seq=device.seq - 3, flags=1)
+        device.send(Status(t_us=3), seq=first_missing + 1, flags=1)
+        device.send(Status(t_us=3), seq=first_missing + 1, flags=1)  # twice: the duplicate is dropped
         device.send(Status(t_us=4))
         host.wait(lambda: len(host.messages_of(Status)) == 4)
         assert len(host.events_of("sequence_gap")) == 1
+        # the answer's end: three of the four are gone, by kind
+        device.send(ResendLost(first_seq=ask.message.first_seq, count=4, resent=1, exposures=1, samples=1, other=1))
+        (lost,) = host.wait(lambda: host.events_of("history_lost"))
+        assert lost.count == 2 and "1 exposures, 0 PPS, 1 samples" in lost.detail
+        c = link.resend.counters
+        assert (c.recovered, c.duplicates, c.lost_exposures, c.lost_samples, c.lost_other) == (1, 1, 1, 1, 1)
+        assert link.resend.missing_now == 0
 
 
 def test_a_burst_is_taken_in_few_reads_each_stamped_once(host, device):

@@ -15,6 +15,7 @@ BAD: list[tuple[str, str, object]] = [
     ("device", "url", ""),
     ("device", "set_rtc", "yes"),
     ("device", "wait_s", -1.0),
+    ("device", "running_capture", "resume"),
     ("mavlink", "url", ""),
     ("mavlink", "system_id", 300),
     ("mavlink", "system_id", 0),

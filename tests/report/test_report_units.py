@@ -76,3 +76,28 @@ def test_a_recording_without_frames_still_reports(tmp_path: Path) -> None:
     text = out.read_text()
     assert "Frames (0)" in text and "no camera calibration in the recording" in text
     assert text.count("<svg") == 4  # no footprints to draw
+
+
+def test_the_summary_states_what_resend_recovered_and_what_is_lost_by_kind() -> None:
+    from icgt.report.summary import summarize
+
+    s = 1_000_000_000
+    data = _data()
+    _events(data, [{"link": "device", "kind": "history_lost", "count": 5, "_host": 3 * s}])
+    assert data.losses == [Loss("device", 2.0, "history_lost", 5)]
+    rows = dict(summarize(data))
+    assert rows["device frames lost (exposures + PPS + samples)"] == "5"  # a killed recorder: events only
+    data.metadata = {
+        "icgt.device_link": {
+            "resend_recovered": "1559",
+            "lost_exposures": "2",
+            "lost_pps": "1",
+            "lost_samples": "1512",
+            "lost_other": "233",
+            "lost_unknown": "0",
+        }
+    }
+    rows = dict(summarize(data))
+    assert rows["device frames recovered (RESEND) / lost"] == (
+        "1559 recovered; lost: 2 exposures, 1 PPS, 1512 samples, 233 status/replies/logs, 0 unknown"
+    )

@@ -400,3 +400,37 @@ def test_sync_config_from_json_ignores_unknown_keys_and_defaults_missing_ones():
     back = SyncConfig.from_json({"autopilot_system": 7, "future_key": 1, "geotag": {"blur_limit_px": 2.0, "new": 0}})
     assert back == SyncConfig(autopilot_system=7, geotag=GeotagConfig(blur_limit_px=2.0))
     assert SyncConfig.from_json({}) == SyncConfig()
+
+
+# --------------------------------------------------------------------------- Synchroniser: frames resent late
+def test_late_resent_events_and_samples_are_taken_in_place() -> None:
+    """After a gap the device resends (RESEND): exposures arrive after later ones, IMU and range samples older
+    than those held, PPS edges older than the last fitted. Every exposure becomes a frame, the old samples
+    are inserted (not taken for a device reboot), the old PPS edge is skipped and counted."""
+    from icgt.protocol.messages import Imu, Pps, Range
+
+    sync = Synchroniser()
+    t = 100 * S
+    sync.on_device(Hello(protocol_version=1, t_us=(t - DEV_BOOT_HOST_NS) // 1000), t)
+    sync_device_clock(sync, t)
+    dev0 = (t - DEV_BOOT_HOST_NS) // 1000  # device us at host t
+    for k in range(50):  # live samples 5 s .. 10 s after t
+        d = dev0 + 5_000_000 + k * 100_000
+        sync.on_device(Imu(read_start_t_us=d, read_end_t_us=d + 1000, quat_w=1.0), t + 5 * S + k * 100_000_000)
+        sync.on_device(Range(acq_start_t_us=d, read_t_us=d + 500, distance_cm=300, flags=1), t + 5 * S)
+    sync.on_device(Pps(t_us=dev0 + 9_000_000, pps_count=9), t + 9 * S)
+    sync.on_device(Exposure(image_index=20, trigger_t_us=dev0 + 9_500_000), t + 10 * S)
+    # the gap comes back: older exposures, samples and PPS, 4-6 s older than what is held
+    for k in range(5):
+        d = dev0 + 1_000_000 + k * 200_000
+        sync.on_device(Imu(read_start_t_us=d, read_end_t_us=d + 1000, quat_w=1.0), t + 11 * S)
+        sync.on_device(Range(acq_start_t_us=d, read_t_us=d + 500, distance_cm=250, flags=1), t + 11 * S)
+        sync.on_device(Exposure(image_index=10 + k, trigger_t_us=d + 10), t + 11 * S)
+    sync.on_device(Pps(t_us=dev0 + 2_000_000, pps_count=2), t + 11 * S)
+    assert sync.counts["late_pps_skipped"] == 1 and sync.counts["device_reboots"] == 0
+    frames = sync.poll(t + 12 * S, flush=True)
+    assert sorted(f.image_index for f in frames) == [10, 11, 12, 13, 14, 20]
+    late = [f for f in frames if f.image_index < 20]
+    assert all(f.range_m is not None and abs(f.range_m - 2.5) < 0.05 for f in late), "the resent ranges were used"
+    (live,) = [f for f in frames if f.image_index == 20]
+    assert live.range_m is not None and abs(live.range_m - 3.0) < 0.05, "the live ranges were kept"

@@ -146,6 +146,8 @@ void App::poll() {
     if (next_status_t_us_ <= now) next_status_t_us_ = now + kStatusPeriodUs;  // after a long stall
   }
   if (link_up_ && start >= send_after_t_us_) outbox_.pump(ports_.link, ports_.clock.now_us());
+  // No host: frames still get their sequence numbers and go into the history, for RESEND.
+  if (!link_up_) outbox_.discard(ports_.clock.now_us());
 
   const uint64_t took = ports_.clock.now_us() - start;
   if (took > loop_max_us_) loop_max_us_ = took > UINT32_MAX ? UINT32_MAX : static_cast<uint32_t>(took);
@@ -235,9 +237,26 @@ void App::on_frame(uint64_t rx_t_us) {
       if (ping.nonce == 0) send_hello(rx_t_us);
       return;
     }
-    case proto::MsgId::RESEND:
-      ack(ErrorCode::not_supported);  // SPEC.md §3: reserved for a later version
+    case proto::MsgId::RESEND: {
+      proto::Resend cmd;
+      if (!rx_.decode(cmd)) return;
+      if (cmd.count == 0) {
+        ack(ErrorCode::out_of_range, 0);
+      } else if (!outbox_.request_resend(cmd.first_seq, cmd.count)) {
+        ack(ErrorCode::out_of_range, static_cast<uint32_t>(Outbox::kResendQueue));  // too many waiting
+      } else {
+        ack(ErrorCode::ok, cmd.count);  // queued before the frames: the ACK comes first
+      }
       return;
+    }
+    case proto::MsgId::HOST_RECEIVED: {
+      proto::HostReceived cmd;
+      if (!rx_.decode(cmd)) return;
+      host_received_seq_ = cmd.next_seq;
+      host_received_valid_ = true;
+      ack(ErrorCode::ok, cmd.next_seq);
+      return;
+    }
     default:
       ack(ErrorCode::unknown_command);  // a device-to-host type sent to the device
       return;
@@ -268,7 +287,11 @@ ErrorCode App::start_capture(const proto::StartCapture& cmd, uint64_t now_us, pr
   }
   if (pairing_.configure(fb) != FeedbackResult::ok) return refuse(limit, proto::Limit::feedback_timeout);
   const TriggerResult r = trigger_.start(p, now_us);
-  if (r == TriggerResult::ok) log(now_us, proto::LogLevel::info, "capture started, mode ", cmd.mode, true);
+  if (r == TriggerResult::ok) {
+    capture_ = cmd;
+    capture_start_seq_ = outbox_.next_seq() + static_cast<uint32_t>(outbox_.queued()) + 1;  // after the ACK
+    log(now_us, proto::LogLevel::info, "capture started, mode ", cmd.mode, true);
+  }
   return static_cast<ErrorCode>(r);
 }
 
@@ -492,6 +515,32 @@ void App::send_hello(uint64_t now_us) {
   h.rtc_utc_us_at_boot = timebase_.utc_us_at_boot();
   h.lidar_model = static_cast<uint8_t>(lidar_enabled_ ? config_.lidar_model : proto::LidarModel::none);
   (void)outbox_.push(h);
+  (void)outbox_.push(device_state(now_us));
+}
+
+proto::DeviceState App::device_state(uint64_t now_us) const {
+  proto::DeviceState d;
+  d.t_us = now_us;
+  d.capture_state = static_cast<uint8_t>(trigger_.state());
+  d.mode = capture_.mode;
+  d.interval_us = capture_.interval_us;
+  d.count = capture_.count;
+  d.focus_lead_us = capture_.focus_lead_us;
+  d.burst_us = capture_.burst_us;
+  d.shutter_pulse_us = capture_.shutter_pulse_us;
+  d.triggers_fired = trigger_.triggers_fired();
+  d.capture_start_seq = capture_start_seq_;
+  d.next_seq = outbox_.next_seq();
+  d.history_first_seq = outbox_.history().first_known_seq();
+  d.host_received_seq = host_received_seq_;
+  d.host_received_valid = host_received_valid_ ? 1 : 0;
+  d.imu_rate_hz = imu_enabled_ ? config_.imu_rate_hz : 0;
+  d.range_rate_hz = lidar_enabled_ ? config_.range_rate_hz : 0;
+  d.lidar_model = static_cast<uint8_t>(lidar_enabled_ ? config_.lidar_model : proto::LidarModel::none);
+  d.polarity = config_.polarity;
+  d.feedback_enabled = pairing_.feedback_enabled() ? 1 : 0;
+  d.feedback_timeout_us = config_.feedback_timeout_us;
+  return d;
 }
 
 void App::log(uint64_t now_us, proto::LogLevel level, const char* text, uint32_t number, bool with_number) {

@@ -95,6 +95,8 @@ class App {
   [[nodiscard]] const DeviceConfig& config() const { return config_; }
   [[nodiscard]] const proto::DecoderStats& rx_stats() const { return rx_.stats(); }
   [[nodiscard]] proto::Status status(uint64_t now_us);
+  // What a (re)connecting host needs to take over: sent after every HELLO.
+  [[nodiscard]] proto::DeviceState device_state(uint64_t now_us) const;
   // Time the sensor steps held the loop (I2C transfers), and steps deferred by the budget.
   [[nodiscard]] uint64_t i2c_busy_us() const { return i2c_busy_us_; }
   [[nodiscard]] uint64_t i2c_deferred_steps() const { return i2c_deferred_steps_; }
@@ -138,6 +140,10 @@ class App {
   uint64_t i2c_credit_t_us_ = 0;
   uint64_t i2c_busy_us_ = 0;
   uint64_t i2c_deferred_steps_ = 0;
+  proto::StartCapture capture_{};  // the last capture started (DEVICE_STATE)
+  uint32_t capture_start_seq_ = 0;
+  uint32_t host_received_seq_ = 0;
+  bool host_received_valid_ = false;
   Bno055State last_imu_state_ = Bno055State::initialising;
   LidarState last_lidar_state_ = LidarState::configuring;
 };

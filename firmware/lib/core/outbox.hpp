@@ -4,11 +4,18 @@
 // Events (EXPOSURE, PPS, ACK, TIME_SYNC_REPLY, HELLO, STATUS) have their own queue and are
 // sent before any sample: under link saturation the sample queues fill first and shed new
 // samples, each drop counted by cause (SPEC.md §8). No heap: all storage is in the object.
+//
+// Every frame built is recorded in the history (core/history.hpp) under its sequence number.
+// While the link is down frames are still built and recorded, only not written (discard()):
+// the host sees their sequence numbers missing when it is back and asks RESEND for them.
+// RESEND requests wait in a small queue; their frames are sent after live events and before
+// live samples (alternating with them), and each request ends with a RESEND_LOST.
 #pragma once
 
 #include <cstddef>
 #include <cstdint>
 
+#include "core/history.hpp"
 #include "core/spsc_queue.hpp"
 #include "frame.hpp"
 #include "hal/hal.hpp"
@@ -33,14 +40,19 @@ struct OutboxCounters {
   uint32_t dropped_range = 0;
   uint32_t dropped_log = 0;
   uint32_t dropped_event = 0;
+  uint32_t resend_requests = 0;
+  uint32_t frames_resent = 0;
+  uint32_t sent_while_down = 0;  // frames built and recorded while no host listened
 };
 
 class Outbox {
  public:
-  static constexpr std::size_t kEventCapacity = 64;   // 12 s of 5 fps exposures with the link gone
+  static constexpr std::size_t kEventCapacity = 64;   // 12 s of 5 fps exposures with a host not reading
   static constexpr std::size_t kImuCapacity = 16;     // 160 ms at 100 Hz
   static constexpr std::size_t kRangeCapacity = 64;   // 128 ms at 500 Hz
   static constexpr std::size_t kLogCapacity = 8;
+  static constexpr std::size_t kResendQueue = 8;        // RESEND requests waiting to be answered
+  static constexpr uint32_t kResendTallyPerPump = 2048;  // sequence numbers counted per pump, at most
 
   // Queue a message. Returns false if its queue is full (the drop is counted by cause).
   template <class Msg>
@@ -65,6 +77,14 @@ class Outbox {
   // sequence number missing) and the next frame starts with a 0x00 to resynchronise.
   void link_lost();
 
+  // The link is down: build every queued frame and record it in the history without sending
+  // it (as if the link had taken it), so no queue fills while no host listens.
+  void discard(uint64_t now_us);
+
+  // Queue an answer to RESEND(first_seq, count). False (nothing queued) if the queue is full.
+  [[nodiscard]] bool request_resend(uint32_t first_seq, uint32_t count);
+
+  [[nodiscard]] const History& history() const { return history_; }
   [[nodiscard]] OutboxCounters counters() const;
   [[nodiscard]] uint32_t next_seq() const { return seq_; }
   [[nodiscard]] std::size_t queued() const {
@@ -82,7 +102,16 @@ class Outbox {
     return q.push(slot);
   }
 
-  [[nodiscard]] bool build_next(uint64_t now_us);
+  struct ResendJob {
+    proto::ResendLost tally;  // first_seq, count and the counts so far
+    uint32_t next = 0;        // next sequence number to look at
+  };
+  enum class ResendStep : uint8_t { idle, built, working };
+
+  [[nodiscard]] bool build_next(uint64_t now_us, bool live);
+  [[nodiscard]] ResendStep step_resend();
+  void count_missing(ResendJob& job, uint32_t until);
+  void record(uint8_t type, const uint8_t* body, std::size_t len);
   template <std::size_t N, std::size_t C>
   [[nodiscard]] bool build_from(SpscQueue<QueuedBody<N>, C>& q, uint64_t now_us);
 
@@ -91,6 +120,14 @@ class Outbox {
   SpscQueue<QueuedBody<kSampleBodyBytes>, kRangeCapacity> range_;
   SpscQueue<QueuedBody<kLogBodyBytes>, kLogCapacity> log_;
   bool prefer_range_ = true;  // alternate IMU and RANGE when both wait
+  bool prefer_resend_ = true;  // alternate resent frames and live samples when both wait
+  History history_;
+  ResendJob resends_[kResendQueue]{};
+  std::size_t resend_head_ = 0;
+  std::size_t resend_count_ = 0;
+  uint32_t resend_requests_ = 0;
+  uint32_t frames_resent_ = 0;
+  uint32_t sent_while_down_ = 0;
 
   uint8_t wire_[proto::kMaxWireBytes + 1]{};
   std::size_t wire_len_ = 0;

@@ -11,7 +11,7 @@
 namespace icgt::proto {
 
 inline constexpr uint8_t kProtocolVersion = 1;
-inline constexpr uint32_t kTableHash = 0xD0136D18u;
+inline constexpr uint32_t kTableHash = 0xEE47777Fu;
 inline constexpr std::size_t kMaxFrameBytes = 256;
 inline constexpr std::size_t kHeaderBytes = 8;
 inline constexpr std::size_t kCrcBytes = 4;
@@ -27,6 +27,8 @@ enum class MsgId : uint8_t {
   TIME_SYNC_REPLY = 0x07,
   ACK = 0x08,
   LOG = 0x09,
+  RESEND_LOST = 0x0A,
+  DEVICE_STATE = 0x0B,
   START_CAPTURE = 0x40,
   STOP_CAPTURE = 0x41,
   CONFIGURE = 0x42,
@@ -34,6 +36,7 @@ enum class MsgId : uint8_t {
   SET_TIME = 0x44,
   PING = 0x45,
   RESEND = 0x46,
+  HOST_RECEIVED = 0x47,
 };
 
 // Name of a message id, or nullptr if the id is not in the table.
@@ -48,6 +51,8 @@ enum class MsgId : uint8_t {
     case 0x07: return "TIME_SYNC_REPLY";
     case 0x08: return "ACK";
     case 0x09: return "LOG";
+    case 0x0A: return "RESEND_LOST";
+    case 0x0B: return "DEVICE_STATE";
     case 0x40: return "START_CAPTURE";
     case 0x41: return "STOP_CAPTURE";
     case 0x42: return "CONFIGURE";
@@ -55,6 +60,7 @@ enum class MsgId : uint8_t {
     case 0x44: return "SET_TIME";
     case 0x45: return "PING";
     case 0x46: return "RESEND";
+    case 0x47: return "HOST_RECEIVED";
     default: return nullptr;
   }
 }
@@ -71,6 +77,8 @@ enum class MsgId : uint8_t {
     case 0x07: min_bytes = 28; max_bytes = 28; return true;
     case 0x08: min_bytes = 10; max_bytes = 10; return true;
     case 0x09: min_bytes = 9; max_bytes = 209; return true;
+    case 0x0A: min_bytes = 32; max_bytes = 32; return true;
+    case 0x0B: min_bytes = 62; max_bytes = 62; return true;
     case 0x40: min_bytes = 22; max_bytes = 22; return true;
     case 0x41: min_bytes = 1; max_bytes = 1; return true;
     case 0x42: min_bytes = 20; max_bytes = 20; return true;
@@ -78,6 +86,7 @@ enum class MsgId : uint8_t {
     case 0x44: min_bytes = 8; max_bytes = 8; return true;
     case 0x45: min_bytes = 4; max_bytes = 4; return true;
     case 0x46: min_bytes = 6; max_bytes = 6; return true;
+    case 0x47: min_bytes = 4; max_bytes = 4; return true;
     default: return false;
   }
 }
@@ -733,6 +742,170 @@ struct Log {
   }
 };
 
+// RESEND_LOST (device to host): Ends the answer to one RESEND: every frame of first_seq .. first_seq+count-1 that was not sent again is counted here by kind, from the device's own record of what each sequence number carried. exposures + pps + samples + other + unknown + resent = count.
+struct ResendLost {
+  static constexpr MsgId kId = MsgId::RESEND_LOST;
+  static constexpr const char* kName = "RESEND_LOST";
+  static constexpr std::size_t kMinBodyBytes = 32;
+  static constexpr std::size_t kMaxBodyBytes = 32;
+  uint32_t first_seq{};  // [count] The RESEND's first_seq.
+  uint32_t count{};  // [count] The RESEND's count.
+  uint32_t resent{};  // [count] Frames of the range sent again (retransmit flag) before this one.
+  uint32_t exposures{};  // [count] EXPOSURE frames of the range no longer in the history (overwritten).
+  uint32_t pps{};  // [count] PPS frames of the range no longer in the history.
+  uint32_t samples{};  // [count] IMU and RANGE frames of the range no longer in the history.
+  uint32_t other{};  // [count] Frames the history never keeps (STATUS, HELLO, DEVICE_STATE, ACK, TIME_SYNC_REPLY, LOG, RESEND_LOST): cumulative or stale, not worth sending again.
+  uint32_t unknown{};  // [count] Sequence numbers too old for the device to say what they carried, or not sent yet.
+
+  // Writes the body into out; returns the bytes written, 0 if cap is too small.
+  [[nodiscard]] std::size_t encode(uint8_t* out, std::size_t cap) const {
+    const std::size_t n = 32u;
+    if (n > cap) return 0;
+    wire::put(out + 0, first_seq);
+    wire::put(out + 4, count);
+    wire::put(out + 8, resent);
+    wire::put(out + 12, exposures);
+    wire::put(out + 16, pps);
+    wire::put(out + 20, samples);
+    wire::put(out + 24, other);
+    wire::put(out + 28, unknown);
+    return n;
+  }
+
+  // Reads a body of exactly the right length; false (and *this untouched) otherwise.
+  [[nodiscard]] bool decode(const uint8_t* in, std::size_t len) {
+    if (len != kMinBodyBytes) return false;
+    first_seq = wire::get<uint32_t>(in + 0);
+    count = wire::get<uint32_t>(in + 4);
+    resent = wire::get<uint32_t>(in + 8);
+    exposures = wire::get<uint32_t>(in + 12);
+    pps = wire::get<uint32_t>(in + 16);
+    samples = wire::get<uint32_t>(in + 20);
+    other = wire::get<uint32_t>(in + 24);
+    unknown = wire::get<uint32_t>(in + 28);
+    return true;
+  }
+
+  // Calls v(name, value) for every field in wire order (strings as wire::StrView).
+  template <class Visitor>
+  void visit(Visitor&& v) const {
+    v("first_seq", first_seq);
+    v("count", count);
+    v("resent", resent);
+    v("exposures", exposures);
+    v("pps", pps);
+    v("samples", samples);
+    v("other", other);
+    v("unknown", unknown);
+  }
+};
+
+// DEVICE_STATE (device to host): Sent right after every HELLO: what a host that (re)connects needs to take over a running device, the capture in progress with its parameters, the configuration in force, the sequence numbers of the history and what the last host said it had received.
+struct DeviceState {
+  static constexpr MsgId kId = MsgId::DEVICE_STATE;
+  static constexpr const char* kName = "DEVICE_STATE";
+  static constexpr std::size_t kMinBodyBytes = 62;
+  static constexpr std::size_t kMaxBodyBytes = 62;
+  uint64_t t_us{};  // [us] Device clock when sent.
+  uint8_t capture_state{};  // [enum] Trigger state.
+  uint8_t mode{};  // [enum] The running (or last) capture's mode; 0 if none since boot.
+  uint32_t interval_us{};  // [us] The capture's interval.
+  uint32_t count{};  // [count] The capture's shot count (mode count), 0 otherwise.
+  uint32_t focus_lead_us{};  // [us] The capture's focus lead.
+  uint32_t burst_us{};  // [us] The capture's burst length.
+  uint32_t shutter_pulse_us{};  // [us] The capture's shutter pulse width.
+  uint32_t triggers_fired{};  // [count] Shutter pulses fired since boot.
+  uint32_t capture_start_seq{};  // [count] Sequence number of the first frame after the capture started.
+  uint32_t next_seq{};  // [count] Sequence number the device gives its next frame.
+  uint32_t history_first_seq{};  // [count] Oldest sequence number whose kind the device still knows (RESEND further back reports unknown).
+  uint32_t host_received_seq{};  // [count] The last HOST_RECEIVED's next_seq: every frame before it is in a host's log.
+  uint8_t host_received_valid{};  // [1] 1 once a host has sent HOST_RECEIVED since boot; 0: host_received_seq means nothing.
+  uint16_t imu_rate_hz{};  // [Hz] Configured IMU rate (0 = off).
+  uint16_t range_rate_hz{};  // [Hz] Configured range rate (0 = off).
+  uint8_t lidar_model{};  // [enum] Configured LIDAR-Lite variant.
+  uint8_t polarity{};  // [bitmask] Configured line polarity.
+  uint8_t feedback_enabled{};  // [1] 1 = feedback line in use.
+  uint32_t feedback_timeout_us{};  // [us] Configured feedback timeout.
+
+  // Writes the body into out; returns the bytes written, 0 if cap is too small.
+  [[nodiscard]] std::size_t encode(uint8_t* out, std::size_t cap) const {
+    const std::size_t n = 62u;
+    if (n > cap) return 0;
+    wire::put(out + 0, t_us);
+    wire::put(out + 8, capture_state);
+    wire::put(out + 9, mode);
+    wire::put(out + 10, interval_us);
+    wire::put(out + 14, count);
+    wire::put(out + 18, focus_lead_us);
+    wire::put(out + 22, burst_us);
+    wire::put(out + 26, shutter_pulse_us);
+    wire::put(out + 30, triggers_fired);
+    wire::put(out + 34, capture_start_seq);
+    wire::put(out + 38, next_seq);
+    wire::put(out + 42, history_first_seq);
+    wire::put(out + 46, host_received_seq);
+    wire::put(out + 50, host_received_valid);
+    wire::put(out + 51, imu_rate_hz);
+    wire::put(out + 53, range_rate_hz);
+    wire::put(out + 55, lidar_model);
+    wire::put(out + 56, polarity);
+    wire::put(out + 57, feedback_enabled);
+    wire::put(out + 58, feedback_timeout_us);
+    return n;
+  }
+
+  // Reads a body of exactly the right length; false (and *this untouched) otherwise.
+  [[nodiscard]] bool decode(const uint8_t* in, std::size_t len) {
+    if (len != kMinBodyBytes) return false;
+    t_us = wire::get<uint64_t>(in + 0);
+    capture_state = wire::get<uint8_t>(in + 8);
+    mode = wire::get<uint8_t>(in + 9);
+    interval_us = wire::get<uint32_t>(in + 10);
+    count = wire::get<uint32_t>(in + 14);
+    focus_lead_us = wire::get<uint32_t>(in + 18);
+    burst_us = wire::get<uint32_t>(in + 22);
+    shutter_pulse_us = wire::get<uint32_t>(in + 26);
+    triggers_fired = wire::get<uint32_t>(in + 30);
+    capture_start_seq = wire::get<uint32_t>(in + 34);
+    next_seq = wire::get<uint32_t>(in + 38);
+    history_first_seq = wire::get<uint32_t>(in + 42);
+    host_received_seq = wire::get<uint32_t>(in + 46);
+    host_received_valid = wire::get<uint8_t>(in + 50);
+    imu_rate_hz = wire::get<uint16_t>(in + 51);
+    range_rate_hz = wire::get<uint16_t>(in + 53);
+    lidar_model = wire::get<uint8_t>(in + 55);
+    polarity = wire::get<uint8_t>(in + 56);
+    feedback_enabled = wire::get<uint8_t>(in + 57);
+    feedback_timeout_us = wire::get<uint32_t>(in + 58);
+    return true;
+  }
+
+  // Calls v(name, value) for every field in wire order (strings as wire::StrView).
+  template <class Visitor>
+  void visit(Visitor&& v) const {
+    v("t_us", t_us);
+    v("capture_state", capture_state);
+    v("mode", mode);
+    v("interval_us", interval_us);
+    v("count", count);
+    v("focus_lead_us", focus_lead_us);
+    v("burst_us", burst_us);
+    v("shutter_pulse_us", shutter_pulse_us);
+    v("triggers_fired", triggers_fired);
+    v("capture_start_seq", capture_start_seq);
+    v("next_seq", next_seq);
+    v("history_first_seq", history_first_seq);
+    v("host_received_seq", host_received_seq);
+    v("host_received_valid", host_received_valid);
+    v("imu_rate_hz", imu_rate_hz);
+    v("range_rate_hz", range_rate_hz);
+    v("lidar_model", lidar_model);
+    v("polarity", polarity);
+    v("feedback_enabled", feedback_enabled);
+    v("feedback_timeout_us", feedback_timeout_us);
+  }
+};
+
 // START_CAPTURE (host to device): Start triggering. Refused with busy_capturing while a capture runs.
 struct StartCapture {
   static constexpr MsgId kId = MsgId::START_CAPTURE;
@@ -977,7 +1150,7 @@ struct Ping {
   }
 };
 
-// RESEND (host to device): Ask the device to send again the frames first_seq .. first_seq+count-1 (they come back with the retransmit flag). Reserved in version 1: devices answer not_supported.
+// RESEND (host to device): Ask the device to send again the frames first_seq .. first_seq+count-1 of its own sequence. ACKed at once (detail = count); the frames it still holds come back in order with the retransmit flag and their original seq, then one RESEND_LOST for the same range says how many of the rest are gone, by kind. A device without a history (firmware before the history ring) answers not_supported.
 struct Resend {
   static constexpr MsgId kId = MsgId::RESEND;
   static constexpr const char* kName = "RESEND";
@@ -1011,6 +1184,36 @@ struct Resend {
   }
 };
 
+// HOST_RECEIVED (host to device): The host has every device frame before next_seq safely in its log (or counted as lost). ACKed. The device reports the value in DEVICE_STATE, so a host that restarts knows where the last one stopped and asks RESEND for the rest.
+struct HostReceived {
+  static constexpr MsgId kId = MsgId::HOST_RECEIVED;
+  static constexpr const char* kName = "HOST_RECEIVED";
+  static constexpr std::size_t kMinBodyBytes = 4;
+  static constexpr std::size_t kMaxBodyBytes = 4;
+  uint32_t next_seq{};  // [count] First device sequence number the host does not have yet.
+
+  // Writes the body into out; returns the bytes written, 0 if cap is too small.
+  [[nodiscard]] std::size_t encode(uint8_t* out, std::size_t cap) const {
+    const std::size_t n = 4u;
+    if (n > cap) return 0;
+    wire::put(out + 0, next_seq);
+    return n;
+  }
+
+  // Reads a body of exactly the right length; false (and *this untouched) otherwise.
+  [[nodiscard]] bool decode(const uint8_t* in, std::size_t len) {
+    if (len != kMinBodyBytes) return false;
+    next_seq = wire::get<uint32_t>(in + 0);
+    return true;
+  }
+
+  // Calls v(name, value) for every field in wire order (strings as wire::StrView).
+  template <class Visitor>
+  void visit(Visitor&& v) const {
+    v("next_seq", next_seq);
+  }
+};
+
 // Calls fn(MessageStruct{}) with a default instance of the message type for id;
 // returns false if the id is unknown.
 template <class Fn>
@@ -1025,6 +1228,8 @@ template <class Fn>
     case 0x07: fn(TimeSyncReply{}); return true;
     case 0x08: fn(Ack{}); return true;
     case 0x09: fn(Log{}); return true;
+    case 0x0A: fn(ResendLost{}); return true;
+    case 0x0B: fn(DeviceState{}); return true;
     case 0x40: fn(StartCapture{}); return true;
     case 0x41: fn(StopCapture{}); return true;
     case 0x42: fn(Configure{}); return true;
@@ -1032,6 +1237,7 @@ template <class Fn>
     case 0x44: fn(SetTime{}); return true;
     case 0x45: fn(Ping{}); return true;
     case 0x46: fn(Resend{}); return true;
+    case 0x47: fn(HostReceived{}); return true;
     default: return false;
   }
 }

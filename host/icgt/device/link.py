@@ -3,8 +3,12 @@
 One reader thread owns the port. It stamps every read with the host's monotonic clock the
 moment bytes arrive, decodes frames, answers waiting commands and TIME_SYNC exchanges, and
 hands every message to the recorder's callback. When the port fails (unplugged cable) it
-reports the outage, reopens the same URL until the device is back, and reports how many
-device messages the sequence numbers say were lost in between.
+reports the outage, reopens the same URL until the device is back, and asks the device again
+for every frame the sequence numbers say it missed (`icgt.device.resend`): retransmitted
+frames are delivered like live ones (late), duplicates are dropped, and what the device could
+no longer send is counted by kind and reported as a 'history_lost' event. Every second it tells
+the device how far its log is complete (HOST_RECEIVED, a few seconds behind, so a host killed
+meanwhile loses nothing that a successor cannot ask for again).
 """
 
 from __future__ import annotations
@@ -21,13 +25,30 @@ import serial
 from serial.urlhandler import protocol_socket
 
 from icgt.device.limits import describe_refusal
+from icgt.device.resend import LossReport, ResendTracker
 from icgt.errors import ProtocolError, VersionMismatchError
 from icgt.protocol import PROTOCOL_VERSION, TABLE_HASH, Received, StreamDecoder, encode_frame
-from icgt.protocol.messages import Ack, ErrorCode, Hello, Message, Ping, TimeSync, TimeSyncReply
+from icgt.protocol.messages import (
+    Ack,
+    DeviceState,
+    ErrorCode,
+    Hello,
+    HostReceived,
+    Message,
+    Ping,
+    TimeSync,
+    TimeSyncReply,
+)
 
 HANDSHAKE_TIMEOUT_S = 3.0
 COMMAND_TIMEOUT_S = 0.3
 REOPEN_INTERVAL_S = 0.2
+HOST_RECEIVED_PERIOD_NS = 1_000_000_000
+# HOST_RECEIVED reports what was complete this long ago: the worker writes a frame to the log within
+# milliseconds, but the MCAP chunk holding it is closed only every second, and a chunk not closed when
+# the recorder is killed is not in the file. A successor asks RESEND from there (duplicates across the
+# two files, never a loss).
+HOST_RECEIVED_LAG_NS = 3_000_000_000
 
 
 class DeviceLinkError(ProtocolError):
@@ -69,8 +90,9 @@ class TimeSyncSample:
 
 @dataclass(frozen=True, slots=True)
 class DeviceLinkEvent:
-    """Something about the link itself, for the log: kind is one of
-    'connected', 'disconnected', 'sequence_gap', 'frames_rejected', 'table_hash_mismatch'."""
+    """Something about the link itself, for the log: kind is one of 'connected', 'disconnected',
+    'sequence_gap', 'frames_rejected', 'table_hash_mismatch', 'history_lost' (frames the device could no
+    longer send: count = exposures + PPS + samples, detail by kind)."""
 
     kind: str
     host_ns: int
@@ -123,6 +145,11 @@ class DeviceLink:
         self._down_since_ns = 0
         self._rejected_reported = 0
         self.bytes_received = 0
+        self.resend = ResendTracker(self._send_quietly, on_loss=self._history_lost)
+        self._device_state: DeviceState | None = None
+        self._device_state_event = threading.Event()
+        self._received_marks: list[tuple[int, int]] = []  # (host ns, HOST_RECEIVED value) not sent yet
+        self._next_mark_ns = 0
 
     # ---------------------------------------------------------------- lifecycle
     def start(self) -> Hello:
@@ -165,6 +192,15 @@ class DeviceLink:
     @property
     def decoder_stats(self) -> dict[str, int | None]:
         return self._decoder.stats.as_dict()
+
+    @property
+    def device_state(self) -> DeviceState | None:
+        """The last DEVICE_STATE (sent after every HELLO)."""
+        return self._device_state
+
+    def wait_device_state(self, timeout_s: float) -> DeviceState | None:
+        self._device_state_event.wait(timeout_s)
+        return self._device_state
 
     @property
     def frames_rejected(self) -> int:
@@ -292,6 +328,38 @@ class DeviceLink:
             if data:
                 self.bytes_received += len(data)
                 self._feed(data, host_rx_ns)
+            self.resend.tick()
+            self._report_received(host_rx_ns)
+
+    def _send_quietly(self, message: Message) -> None:
+        self.send(message)  # DeviceLinkError when down: the tracker asks again later
+
+    def _history_lost(self, r: LossReport) -> None:
+        if r.exposures + r.pps + r.samples + r.unknown == 0:
+            return  # only STATUS/ACK/LOG frames, which the device never keeps: counted, not worth an event
+        detail = (
+            f"device frames {r.first_seq}..{(r.first_seq + r.count - 1) & 0xFFFFFFFF} not recoverable "
+            f"({r.resent} came back): {r.exposures} exposures, {r.pps} PPS, {r.samples} samples, "
+            f"{r.other} status/replies/logs, {r.unknown} unknown"
+        )
+        self._on_event(
+            DeviceLinkEvent("history_lost", time.monotonic_ns(), detail, count=r.exposures + r.pps + r.samples)
+        )
+
+    def _report_received(self, now_ns: int) -> None:
+        """Every second note how far the log is complete; send the note from HOST_RECEIVED_LAG_NS ago."""
+        if now_ns < self._next_mark_ns:
+            return
+        self._next_mark_ns = now_ns + HOST_RECEIVED_PERIOD_NS
+        through = self.resend.received_through()
+        if through is not None:
+            self._received_marks.append((now_ns, through))
+        due = [m for m in self._received_marks if now_ns - m[0] >= HOST_RECEIVED_LAG_NS]
+        if not due:
+            return
+        self._received_marks = [m for m in self._received_marks if now_ns - m[0] < HOST_RECEIVED_LAG_NS]
+        with contextlib.suppress(DeviceLinkError):
+            self.send(HostReceived(next_seq=due[-1][1]))
 
     @staticmethod
     def _read_chunk(port: serial.SerialBase) -> bytes:
@@ -332,10 +400,13 @@ class DeviceLink:
         stats = self._decoder.stats
         missed_before = stats.seq_missed
         for received in self._decoder.feed(data):
-            self._dispatch(received, host_rx_ns)
+            if self.resend.observe(received):
+                self._dispatch(received, host_rx_ns)
         if stats.seq_missed != missed_before:
             n = stats.seq_missed - missed_before
-            self._on_event(DeviceLinkEvent("sequence_gap", host_rx_ns, f"{n} device messages lost", count=n))
+            self._on_event(
+                DeviceLinkEvent("sequence_gap", host_rx_ns, f"{n} device messages missing: asked again", count=n)
+            )
         if stats.rejected != self._rejected_reported:
             n = stats.rejected - self._rejected_reported
             self._rejected_reported = stats.rejected
@@ -355,6 +426,9 @@ class DeviceLink:
             if len(self._sync_sent) > 64:  # replies lost on the wire: forget the oldest requests
                 for seq in sorted(self._sync_sent)[:32]:
                     del self._sync_sent[seq]
+        elif isinstance(msg, DeviceState):
+            self._device_state = msg
+            self._device_state_event.set()
         elif isinstance(msg, Hello):
             self._hello = msg
             self._hello_event.set()
@@ -395,6 +469,7 @@ class DeviceLink:
         with self._tx_lock:
             self._port = port
         self._connected.set()
+        self.resend.link_restored()
         outage = now - self._down_since_ns
         self._on_event(
             DeviceLinkEvent("connected", now, f"device link back after {outage / 1e9:.2f} s", outage_ns=outage)

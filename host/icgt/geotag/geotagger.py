@@ -38,6 +38,9 @@ _Lat = Annotated[float, Meta(ge=-90.0, le=90.0)]
 _Lon = Annotated[float, Meta(ge=-180.0, le=180.0)]
 
 
+_NEVER_US = 1 << 62  # a backstep no device clock makes
+
+
 class DeviceClock(Protocol):
     """Device clock [us] -> host CLOCK_MONOTONIC [ns] (icgt.clocks.DeviceClockFilter)."""
 
@@ -157,8 +160,10 @@ class Geotagger:
         self._emit = emit
         self._q_cam_body = camera_to_body_quaternion(config)
         self._rules = PositionRules(config.max_gps_gap_s, config.max_accel_m_s2, config.local_drift_m_per_s)
-        self._imu: TelemetryBuffer[DeviceSample] = TelemetryBuffer(512)
-        self._range: TelemetryBuffer[DeviceSample] = TelemetryBuffer(2048)
+        # Device samples come back late after a gap (RESEND): a sample from before the newest one is
+        # inserted in place, never taken for a reboot (the synchroniser clears them on a device reboot).
+        self._imu: TelemetryBuffer[DeviceSample] = TelemetryBuffer(512, reboot_backstep_us=_NEVER_US)
+        self._range: TelemetryBuffer[DeviceSample] = TelemetryBuffer(2048, reboot_backstep_us=_NEVER_US)
         self._pending: deque[_Pending] = deque()
         self._lock = threading.Lock()
         self._seq = 0
@@ -171,6 +176,11 @@ class Geotagger:
 
     def add_range(self, rng: Range) -> None:
         self._range.push(DeviceSample(rng.acq_start_t_us, rng))
+
+    def clear_device_samples(self) -> None:
+        """The device rebooted: its clock restarted, the IMU and range samples held mean nothing now."""
+        self._imu.clear()
+        self._range.clear()
 
     def add_exposure(self, exposure: Exposure, rx_host_ns: int) -> None:
         flags: list[str] = []

@@ -13,7 +13,7 @@ from typing import ClassVar
 from icgt.errors import EncodeError
 
 PROTOCOL_VERSION = 1
-TABLE_HASH = 0xD0136D18
+TABLE_HASH = 0xEE47777F
 MAX_FRAME_BYTES = 256
 HEADER_BYTES = 8
 CRC_BYTES = 4
@@ -32,6 +32,8 @@ class MsgId(IntEnum):
     TIME_SYNC_REPLY = 0x07
     ACK = 0x08
     LOG = 0x09
+    RESEND_LOST = 0x0A
+    DEVICE_STATE = 0x0B
     START_CAPTURE = 0x40
     STOP_CAPTURE = 0x41
     CONFIGURE = 0x42
@@ -39,6 +41,7 @@ class MsgId(IntEnum):
     SET_TIME = 0x44
     PING = 0x45
     RESEND = 0x46
+    HOST_RECEIVED = 0x47
 
 
 class Board(IntEnum):
@@ -573,6 +576,108 @@ class Log(Message):
         return cls(*v)
 
 
+_S_RESEND_LOST = struct.Struct('<IIIIIIII')
+
+
+@dataclass(slots=True)
+class ResendLost(Message):
+    """RESEND_LOST: Ends the answer to one RESEND: every frame of first_seq .. first_seq+count-1 that was not sent again is counted here by kind, from the device's own record of what each sequence number carried. exposures + pps + samples + other + unknown + resent = count."""
+
+    ID: ClassVar[int] = 0x0A
+    NAME: ClassVar[str] = "RESEND_LOST"
+    DIRECTION: ClassVar[str] = "device_to_host"
+    MIN_BODY: ClassVar[int] = 32
+    MAX_BODY: ClassVar[int] = 32
+    UNITS: ClassVar[dict[str, str]] = {"first_seq": "count", "count": "count", "resent": "count", "exposures": "count", "pps": "count", "samples": "count", "other": "count", "unknown": "count"}
+
+    first_seq: int = 0
+    """[count] The RESEND's first_seq."""
+    count: int = 0
+    """[count] The RESEND's count."""
+    resent: int = 0
+    """[count] Frames of the range sent again (retransmit flag) before this one."""
+    exposures: int = 0
+    """[count] EXPOSURE frames of the range no longer in the history (overwritten)."""
+    pps: int = 0
+    """[count] PPS frames of the range no longer in the history."""
+    samples: int = 0
+    """[count] IMU and RANGE frames of the range no longer in the history."""
+    other: int = 0
+    """[count] Frames the history never keeps (STATUS, HELLO, DEVICE_STATE, ACK, TIME_SYNC_REPLY, LOG, RESEND_LOST): cumulative or stale, not worth sending again."""
+    unknown: int = 0
+    """[count] Sequence numbers too old for the device to say what they carried, or not sent yet."""
+
+    def body(self) -> bytes:
+        return _S_RESEND_LOST.pack(self.first_seq, self.count, self.resent, self.exposures, self.pps, self.samples, self.other, self.unknown)
+
+    @classmethod
+    def from_buffer(cls, buf: bytes, offset: int, end: int) -> ResendLost:
+        return cls(*_S_RESEND_LOST.unpack_from(buf, offset))
+
+
+_S_DEVICE_STATE = struct.Struct('<QBBIIIIIIIIIIBHHBBBI')
+
+
+@dataclass(slots=True)
+class DeviceState(Message):
+    """DEVICE_STATE: Sent right after every HELLO: what a host that (re)connects needs to take over a running device, the capture in progress with its parameters, the configuration in force, the sequence numbers of the history and what the last host said it had received."""
+
+    ID: ClassVar[int] = 0x0B
+    NAME: ClassVar[str] = "DEVICE_STATE"
+    DIRECTION: ClassVar[str] = "device_to_host"
+    MIN_BODY: ClassVar[int] = 62
+    MAX_BODY: ClassVar[int] = 62
+    UNITS: ClassVar[dict[str, str]] = {"t_us": "us", "capture_state": "enum", "mode": "enum", "interval_us": "us", "count": "count", "focus_lead_us": "us", "burst_us": "us", "shutter_pulse_us": "us", "triggers_fired": "count", "capture_start_seq": "count", "next_seq": "count", "history_first_seq": "count", "host_received_seq": "count", "host_received_valid": "1", "imu_rate_hz": "Hz", "range_rate_hz": "Hz", "lidar_model": "enum", "polarity": "bitmask", "feedback_enabled": "1", "feedback_timeout_us": "us"}
+
+    t_us: int = 0
+    """[us] Device clock when sent."""
+    capture_state: int = 0
+    """[enum] Trigger state."""
+    mode: int = 0
+    """[enum] The running (or last) capture's mode; 0 if none since boot."""
+    interval_us: int = 0
+    """[us] The capture's interval."""
+    count: int = 0
+    """[count] The capture's shot count (mode count), 0 otherwise."""
+    focus_lead_us: int = 0
+    """[us] The capture's focus lead."""
+    burst_us: int = 0
+    """[us] The capture's burst length."""
+    shutter_pulse_us: int = 0
+    """[us] The capture's shutter pulse width."""
+    triggers_fired: int = 0
+    """[count] Shutter pulses fired since boot."""
+    capture_start_seq: int = 0
+    """[count] Sequence number of the first frame after the capture started."""
+    next_seq: int = 0
+    """[count] Sequence number the device gives its next frame."""
+    history_first_seq: int = 0
+    """[count] Oldest sequence number whose kind the device still knows (RESEND further back reports unknown)."""
+    host_received_seq: int = 0
+    """[count] The last HOST_RECEIVED's next_seq: every frame before it is in a host's log."""
+    host_received_valid: int = 0
+    """[1] 1 once a host has sent HOST_RECEIVED since boot; 0: host_received_seq means nothing."""
+    imu_rate_hz: int = 0
+    """[Hz] Configured IMU rate (0 = off)."""
+    range_rate_hz: int = 0
+    """[Hz] Configured range rate (0 = off)."""
+    lidar_model: int = 0
+    """[enum] Configured LIDAR-Lite variant."""
+    polarity: int = 0
+    """[bitmask] Configured line polarity."""
+    feedback_enabled: int = 0
+    """[1] 1 = feedback line in use."""
+    feedback_timeout_us: int = 0
+    """[us] Configured feedback timeout."""
+
+    def body(self) -> bytes:
+        return _S_DEVICE_STATE.pack(self.t_us, self.capture_state, self.mode, self.interval_us, self.count, self.focus_lead_us, self.burst_us, self.shutter_pulse_us, self.triggers_fired, self.capture_start_seq, self.next_seq, self.history_first_seq, self.host_received_seq, self.host_received_valid, self.imu_rate_hz, self.range_rate_hz, self.lidar_model, self.polarity, self.feedback_enabled, self.feedback_timeout_us)
+
+    @classmethod
+    def from_buffer(cls, buf: bytes, offset: int, end: int) -> DeviceState:
+        return cls(*_S_DEVICE_STATE.unpack_from(buf, offset))
+
+
 _S_START_CAPTURE = struct.Struct('<BBIIIII')
 
 
@@ -760,7 +865,7 @@ _S_RESEND = struct.Struct('<IH')
 
 @dataclass(slots=True)
 class Resend(Message):
-    """RESEND: Ask the device to send again the frames first_seq .. first_seq+count-1 (they come back with the retransmit flag). Reserved in version 1: devices answer not_supported."""
+    """RESEND: Ask the device to send again the frames first_seq .. first_seq+count-1 of its own sequence. ACKed at once (detail = count); the frames it still holds come back in order with the retransmit flag and their original seq, then one RESEND_LOST for the same range says how many of the rest are gone, by kind. A device without a history (firmware before the history ring) answers not_supported."""
 
     ID: ClassVar[int] = 0x46
     NAME: ClassVar[str] = "RESEND"
@@ -782,6 +887,31 @@ class Resend(Message):
         return cls(*_S_RESEND.unpack_from(buf, offset))
 
 
+_S_HOST_RECEIVED = struct.Struct('<I')
+
+
+@dataclass(slots=True)
+class HostReceived(Message):
+    """HOST_RECEIVED: The host has every device frame before next_seq safely in its log (or counted as lost). ACKed. The device reports the value in DEVICE_STATE, so a host that restarts knows where the last one stopped and asks RESEND for the rest."""
+
+    ID: ClassVar[int] = 0x47
+    NAME: ClassVar[str] = "HOST_RECEIVED"
+    DIRECTION: ClassVar[str] = "host_to_device"
+    MIN_BODY: ClassVar[int] = 4
+    MAX_BODY: ClassVar[int] = 4
+    UNITS: ClassVar[dict[str, str]] = {"next_seq": "count"}
+
+    next_seq: int = 0
+    """[count] First device sequence number the host does not have yet."""
+
+    def body(self) -> bytes:
+        return _S_HOST_RECEIVED.pack(self.next_seq)
+
+    @classmethod
+    def from_buffer(cls, buf: bytes, offset: int, end: int) -> HostReceived:
+        return cls(*_S_HOST_RECEIVED.unpack_from(buf, offset))
+
+
 MESSAGE_TYPES: dict[int, type[Message]] = {
     0x01: Hello,
     0x02: Status,
@@ -792,6 +922,8 @@ MESSAGE_TYPES: dict[int, type[Message]] = {
     0x07: TimeSyncReply,
     0x08: Ack,
     0x09: Log,
+    0x0A: ResendLost,
+    0x0B: DeviceState,
     0x40: StartCapture,
     0x41: StopCapture,
     0x42: Configure,
@@ -799,6 +931,7 @@ MESSAGE_TYPES: dict[int, type[Message]] = {
     0x44: SetTime,
     0x45: Ping,
     0x46: Resend,
+    0x47: HostReceived,
 }
 """Every message class by id."""
 
@@ -812,6 +945,8 @@ FIELD_TYPES: dict[str, tuple[tuple[str, str], ...]] = {
     "TIME_SYNC_REPLY": (("host_t_ns", "u64"), ("request_seq", "u32"), ("device_rx_t_us", "u64"), ("device_tx_t_us", "u64")),
     "ACK": (("request_seq", "u32"), ("request_type", "u8"), ("error_code", "u8"), ("detail", "u32")),
     "LOG": (("t_us", "u64"), ("level", "u8"), ("text", "str[200]")),
+    "RESEND_LOST": (("first_seq", "u32"), ("count", "u32"), ("resent", "u32"), ("exposures", "u32"), ("pps", "u32"), ("samples", "u32"), ("other", "u32"), ("unknown", "u32")),
+    "DEVICE_STATE": (("t_us", "u64"), ("capture_state", "u8"), ("mode", "u8"), ("interval_us", "u32"), ("count", "u32"), ("focus_lead_us", "u32"), ("burst_us", "u32"), ("shutter_pulse_us", "u32"), ("triggers_fired", "u32"), ("capture_start_seq", "u32"), ("next_seq", "u32"), ("history_first_seq", "u32"), ("host_received_seq", "u32"), ("host_received_valid", "u8"), ("imu_rate_hz", "u16"), ("range_rate_hz", "u16"), ("lidar_model", "u8"), ("polarity", "u8"), ("feedback_enabled", "u8"), ("feedback_timeout_us", "u32")),
     "START_CAPTURE": (("mode", "u8"), ("camera_id", "u8"), ("interval_us", "u32"), ("count", "u32"), ("focus_lead_us", "u32"), ("burst_us", "u32"), ("shutter_pulse_us", "u32")),
     "STOP_CAPTURE": (("camera_id", "u8"),),
     "CONFIGURE": (("imu_rate_hz", "u16"), ("imu_mode", "u8"), ("imu_ext_crystal", "u8"), ("range_rate_hz", "u16"), ("lidar_model", "u8"), ("lidar_preset", "u8"), ("lidar_bias_every", "u16"), ("polarity", "u8"), ("feedback_enabled", "u8"), ("feedback_timeout_us", "u32"), ("feedback_min_lag_us", "u32")),
@@ -819,5 +954,6 @@ FIELD_TYPES: dict[str, tuple[tuple[str, str], ...]] = {
     "SET_TIME": (("utc_us", "i64"),),
     "PING": (("nonce", "u32"),),
     "RESEND": (("first_seq", "u32"), ("count", "u16")),
+    "HOST_RECEIVED": (("next_seq", "u32"),),
 }
 """Wire type of every field, by message name, in wire order."""

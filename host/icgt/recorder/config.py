@@ -13,6 +13,7 @@ Example (all keys optional; these are the defaults)::
     url = "/dev/ttyACM0"
     set_rtc = true                 # set the device RTC from the host's UTC at start
     wait_s = 30.0                  # wait this long for a device that is not there yet
+    running_capture = "adopt"      # a device already capturing at start: "adopt" it, or "stop" it
 
     [mavlink]
     url = "udpin:0.0.0.0:14550"
@@ -106,6 +107,10 @@ class DeviceSection(_Section, frozen=True, kw_only=True):
     url: Annotated[str, Meta(min_length=1)] = "/dev/ttyACM0"
     set_rtc: bool = True
     wait_s: Annotated[float, Meta(ge=0.0, le=86_400.0)] = 30.0  # for a device not plugged in (or enumerated) yet
+    # A device found capturing at start (the previous recorder was killed): "adopt" records the running
+    # capture as it is (its configuration is kept), "stop" stops it first. Either way what it sent while no
+    # recorder listened is asked back from its history (RESEND).
+    running_capture: Literal["adopt", "stop"] = "adopt"
 
 
 class MavlinkSection(_Section, frozen=True, kw_only=True):

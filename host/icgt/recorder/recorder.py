@@ -60,6 +60,7 @@ from icgt.recorder import capture, topics, views
 from icgt.recorder.camera_link import CAMERA_IMAGES_SCHEMA, CameraImages, build_camera
 from icgt.recorder.config import RecorderConfig
 from icgt.recorder.views import FoxgloveViews
+from icgt.recorder.resync import TakeOver, take_over
 from icgt.recording import McapRecorder, RecordingError, layout
 from icgt.recording.writer import McapLogHandler
 from icgt.sync import SyncConfig, Synchroniser
@@ -95,6 +96,8 @@ class RecorderStatus:
     last_status: dict[str, Any] | None
     timesync: str = ""  # the autopilot's TIMESYNC: answered / unanswered / not asked yet
     waiting_for_device: bool = False  # started, the device not there yet ([device] wait_s)
+    frames_recovered: int = 0  # device frames that came back through RESEND
+    lost_exposures: int = 0  # exposures the device could no longer send (its history ring had moved on)
 
 
 # Inputs from the reader threads to the worker, tagged by kind.
@@ -152,6 +155,7 @@ class Recorder:
         self._next_clock_log_ns = 0
         self._snapshot: dict[str, Any] = {}
         self._waiting_for_device = False
+        self._takeover: TakeOver | None = None
         self.failure: IcgtError | None = None
         self._sensors = config.sensors  # what the device was configured with (a sensor that does not answer: off)
 
@@ -181,8 +185,17 @@ class Recorder:
         try:
             self._open_log(path)
             self._record_hello(self.hello)
-            self._configure_device()
+            assert self.device is not None
+            self._takeover = take_over(self.device, cfg.device.running_capture)
+            if self._takeover.capturing and not self._takeover.adopted:
+                self.device.command(StopCapture())
+            if not self._takeover.adopted:
+                self._configure_device()
             self._start_mavlink()
+            if self._takeover.adopted:
+                self._capturing = True
+                if self.camera is not None:
+                    self.camera.set_capturing(True, self._takeover.interval_s)
         except BaseException:
             self._abandon(path)
             raise
@@ -645,6 +658,7 @@ class Recorder:
         record: dict[str, Any] = {"host_ns": now, "sync": self.sync.counters()}
         if self.device is not None:
             record["device"] = {k: v for k, v in self.device.decoder_stats.items() if v is not None}
+            record["device"] |= self.device.resend.counter_dict()
         if self.mavlink is not None:
             stats = asdict(self.mavlink.stats())
             stats.pop("messages_by_type", None)
@@ -668,13 +682,20 @@ class Recorder:
                 )
         if self.device is None:
             return
-        stats = self.device.decoder_stats
+        stats = self.device.decoder_stats | self.device.resend.counter_dict()
         log.info(
-            "device link summary: %s frames, %s rejected, %s messages lost in %s gaps",
+            "device link summary: %s frames, %s rejected, %s messages missing in %s gaps, %s recovered by RESEND; "
+            "lost: %s exposures, %s PPS, %s samples, %s status/replies/logs, %s unknown",
             stats.get("frames_ok"),
             self.device.frames_rejected,
             stats.get("seq_missed"),
             stats.get("seq_gaps"),
+            stats.get("resend_recovered"),
+            stats.get("lost_exposures"),
+            stats.get("lost_pps"),
+            stats.get("lost_samples"),
+            stats.get("lost_other"),
+            stats.get("lost_unknown"),
         )
         if self.mcap is not None:
             with contextlib.suppress(RecordingError):
@@ -702,6 +723,8 @@ class Recorder:
             pending_frames=int(snap.get("pending_frames", 0)),
             last_status=asdict(last) if last is not None else None,
             timesync=_timesync_status(snap.get("sync", {})),
+            frames_recovered=self.device.resend.counters.recovered if self.device is not None else 0,
+            lost_exposures=self.device.resend.counters.lost_exposures if self.device is not None else 0,
         )
 
     def _handle_control(self, request: Request) -> Reply:

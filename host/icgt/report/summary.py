@@ -47,7 +47,8 @@ class Loss:
     link: str
     t_s: float
     kind: str
-    """'sequence_gap' (messages lost) or 'frames_rejected' (corrupt frames skipped)."""
+    """'sequence_gap' (messages missing, asked again), 'frames_rejected' (corrupt frames skipped) or
+    'history_lost' (what the device could no longer send: exposures + PPS + samples)."""
     count: int
 
 
@@ -169,7 +170,7 @@ def _events(data: FlightData, events: list[dict[str, Any]]) -> None:
         t = data.t_s(int(e["_host"]))
         link, kind = str(e.get("link", "?")), str(e.get("kind", "?"))
         outage = int(e.get("outage_ns") or 0)
-        if kind in ("sequence_gap", "frames_rejected"):
+        if kind in ("sequence_gap", "frames_rejected", "history_lost"):
             data.losses.append(Loss(link, t, kind, int(e.get("count") or 0)))
         elif kind in ("disconnected", "autopilot_lost"):
             # autopilot_lost comes after its silence timeout: its outage_ns is the time since the last message
@@ -302,7 +303,20 @@ def summarize(data: FlightData) -> list[tuple[str, str]]:
     rows.append(("link outages", f"{len(data.outages)} ({total_out:.2f} s in all)" if data.outages else "none"))
     lost = sum(x.count for x in data.losses if x.kind == "sequence_gap")
     rejected = sum(x.count for x in data.losses if x.kind == "frames_rejected")
-    rows.append(("device messages lost / corrupt frames", f"{lost} / {rejected}"))
+    rows.append(("device messages missing / corrupt frames", f"{lost} / {rejected}"))
+    link = data.metadata.get("icgt.device_link", {})
+    if "resend_recovered" in link:
+        rows.append(
+            (
+                "device frames recovered (RESEND) / lost",
+                f"{link.get('resend_recovered')} recovered; lost: {link.get('lost_exposures')} exposures, "
+                f"{link.get('lost_pps')} PPS, {link.get('lost_samples')} samples, {link.get('lost_other')} "
+                f"status/replies/logs, {link.get('lost_unknown')} unknown",
+            )
+        )
+    history_lost = [x for x in data.losses if x.kind == "history_lost"]
+    if history_lost and "resend_recovered" not in link:
+        rows.append(("device frames lost (exposures + PPS + samples)", str(sum(x.count for x in history_lost))))
     st = data.status
     if st:
         rows.append(

@@ -135,10 +135,12 @@ class Synchroniser:
             "device_reboots": 0,
             "autopilot_reboots": 0,
             "frames": 0,
+            "late_pps_skipped": 0,
         }
         self._timesync_warned = False
         self._utc_source = ""  # the UTC source the last poll used, to log each change with its jump
         self._device_t_us = 0  # the latest device time seen since the last HELLO
+        self._last_pps_t_us = 0  # the latest PPS edge fed to the PPS fit
 
     # ------------------------------------------------------------------ inputs
     def on_device(self, msg: Message, rx_ns: int) -> None:
@@ -154,6 +156,12 @@ class Synchroniser:
             self.geotagger.add_exposure(msg, rx_ns)
             self._device_t_us = max(self._device_t_us, msg.trigger_t_us, msg.feedback_start_t_us)
         elif isinstance(msg, Pps):
+            if msg.t_us < self._last_pps_t_us:
+                # Resent after a gap (RESEND), older than an edge already fitted: the PPS fit takes edges in
+                # order only (an older one reads as a reboot); the gap in the edges costs nothing.
+                self.counts["late_pps_skipped"] += 1
+                return
+            self._last_pps_t_us = msg.t_us
             add_pps_edge(self.pps, self.utc, self.device_clock, msg.t_us, msg.pps_count)
             self._device_t_us = max(self._device_t_us, msg.t_us)
         elif isinstance(msg, Status):
@@ -164,6 +172,8 @@ class Synchroniser:
                 # Earlier than device time already seen: the device rebooted, its microsecond clock
                 # restarted and the old mapping means nothing.
                 self.device_clock.reset()
+                self.geotagger.clear_device_samples()
+                self._last_pps_t_us = 0
                 self.counts["device_reboots"] += 1
                 self._event("device_rebooted", rx_ns, f"HELLO at device time {msg.t_us} us: its clock restarted")
             self.hello = msg

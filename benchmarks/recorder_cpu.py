@@ -1,7 +1,11 @@
 #!/usr/bin/env python3
 """Benchmark: the recorder's CPU use, at nominal rates and under a MAVLink flood, next to a floor.
 
-    .venv/bin/python benchmarks/recorder_cpu.py [--out bench-out/recorder_cpu] [--flood-hz 10000]
+    .venv/bin/python benchmarks/recorder_cpu.py [--out bench-out/recorder_cpu] [--flood-hz 10000] [--baseline-rev REV]
+
+With --baseline-rev the recorder of an earlier revision (its host/ package, exported with git archive and
+put first on the recorder's PYTHONPATH) is flown too, each flight next to the same flight of this tree,
+so that before and after are measured in one run, under the same load.
 
 1. Nominal: the deck_pass scenario (5 fps, IMU 100 Hz, range 500 Hz, GLOBAL_POSITION_INT 50 Hz and the
    other telemetry) flown through the real links with `icgt record` as its own process; its CPU time is
@@ -203,44 +207,101 @@ def ours_offline_cpu_percent(inputs: list[tuple[int, str, Any]], flight_s: float
     return 100.0 * cpu / flight_s
 
 
+def _export_baseline(rev: str, into: Path) -> Path:
+    """The host package of git revision `rev` of this repository, unpacked under `into`: its PYTHONPATH."""
+    repo = Path(__file__).resolve().parent.parent
+    into.mkdir(parents=True, exist_ok=True)
+    archive = subprocess.run(["git", "-C", str(repo), "archive", rev, "host"], check=True, capture_output=True)
+    subprocess.run(["tar", "-x", "-C", str(into)], input=archive.stdout, check=True)
+    return into / "host"
+
+
+def _flight_cpu(sc: Any, out: Path, flood_hz: float, pythonpath: Path | None) -> tuple[float, int, Any]:
+    """(recorder CPU %, flood messages sent, flight) for one flight; `pythonpath`: the recorder's code."""
+    saved = os.environ.get("PYTHONPATH")
+    if pythonpath is not None:
+        os.environ["PYTHONPATH"] = str(pythonpath)
+    try:
+        sampler = Sampler(out.resolve(), 12.0, 27.0, flood_hz)
+        sampler.start()
+        flight = fly(sc, out.resolve())
+        sampler.join(timeout=60)
+    finally:
+        if saved is None:
+            os.environ.pop("PYTHONPATH", None)
+        else:
+            os.environ["PYTHONPATH"] = saved
+    return sampler.result, sampler.flood_sent, flight
+
+
+def _logged_foreign(flight: Any) -> int:
+    counters = [d for _, d in read(flight.mcap).messages("/icgt/counters")]
+    return int(counters[-1].get("mavlink", {}).get("undecoded_frames", 0)) if counters else 0
+
+
+def _offline(mcap: Path, out: Path, pythonpath: Path | None) -> tuple[float, float, float]:
+    """(floor %, the worker's %, flight s) of the log's inputs offline; `pythonpath`: the worker's code."""
+    if pythonpath is None:
+        inputs, flight_s = _flight_inputs(mcap)
+        return floor_cpu_percent(inputs, flight_s), ours_offline_cpu_percent(inputs, flight_s, out), flight_s
+    env = {**os.environ, "PYTHONPATH": str(pythonpath)}
+    got = subprocess.run(
+        [sys.executable, __file__, "--offline-worker", str(mcap), str(out)], env=env, check=True,
+        capture_output=True, text=True,
+    )  # fmt: skip
+    floor, ours, flight_s = (float(x) for x in got.stdout.split())
+    return floor, ours, flight_s
+
+
 def main() -> int:
     if len(sys.argv) > 1 and sys.argv[1] == "--flood-worker":
         flood_worker(int(sys.argv[2]), float(sys.argv[3]), float(sys.argv[4]))
+        return 0
+    if len(sys.argv) > 1 and sys.argv[1] == "--offline-worker":
+        floor, ours, flight_s = _offline(Path(sys.argv[2]), Path(sys.argv[3]), None)
+        print(floor, ours, flight_s)
         return 0
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("bench-out/recorder_cpu"))
     parser.add_argument("--flood-hz", type=float, default=10_000.0)
     parser.add_argument("--scenario", default="deck_pass")
     parser.add_argument("--offline-only", type=Path, metavar="MCAP", help="only part 3, on an existing log")
+    parser.add_argument(
+        "--baseline-rev",
+        metavar="REV",
+        help="also fly the recorder of git revision REV (its host/ package), interleaved: before/after columns",
+    )
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
+    variants: list[tuple[str, Path | None]] = [("this tree", None)]
+    if args.baseline_rev:
+        base = _export_baseline(args.baseline_rev, args.out.resolve() / "baseline-src")
+        variants.insert(0, (args.baseline_rev[:12], base))
+    head = "".join(f"{name:>14s}" for name, _ in variants)
+    load = os.getloadavg()
+    print(f"load average at start {load[0]:.1f} {load[1]:.1f} {load[2]:.1f} on {os.cpu_count()} CPUs")
+    mcap = args.offline_only
     if args.offline_only is None:
         sc = load_scenario(args.scenario)
-        results: dict[str, tuple[float, int, Any]] = {}
+        rows: dict[str, list[str]] = {"nominal": [], "flood": []}
         for name, flood_hz in (("nominal", 0.0), ("flood", args.flood_hz)):
-            out = (args.out / name).resolve()
-            sampler = Sampler(out, 12.0, 27.0, flood_hz)
-            sampler.start()
-            flight = fly(sc, out)
-            sampler.join(timeout=60)
-            results[name] = (sampler.result, sampler.flood_sent, flight)
-        nominal_cpu, _, flight = results["nominal"]
-        flood_cpu, sent, flood_flight = results["flood"]
-        counters = [d for _, d in read(flood_flight.mcap).messages("/icgt/counters")]
-        got = counters[-1].get("mavlink", {}).get("undecoded_frames", 0) if counters else 0
-        print(f"recorder CPU, steady state, {sc.name} (5 fps, IMU 100 Hz, range 500 Hz, telemetry 50 Hz)")
-        print(f"  nominal rates                 {nominal_cpu:6.1f} % of one core   (target <= 5 %)")
-        flood = f"  + {args.flood_hz:,.0f} foreign msg/s flood"
-        print(f"{flood:32s}{flood_cpu:6.1f} % of one core   (target < 30 %; {sent} sent, {got} logged)")
-        mcap = flight.mcap
-    else:
-        mcap = args.offline_only
-    inputs, flight_s = _flight_inputs(mcap)
-    floor = floor_cpu_percent(inputs, flight_s)
-    ours = ours_offline_cpu_percent(inputs, flight_s, args.out / "offline.mcap")
+            for k, (_, pythonpath) in enumerate(variants):
+                cpu, sent, flight = _flight_cpu(sc, args.out / f"{name}-{k}", flood_hz, pythonpath)
+                rows[name].append(f"{cpu:12.1f} %")
+                if name == "flood":
+                    print(f"  flood, {variants[k][0]}: {sent} sent, {_logged_foreign(flight)} logged undecoded")
+                if pythonpath is None and name == "nominal":
+                    mcap = flight.mcap
+        print(f"recorder CPU of one core, steady state, {sc.name} (5 fps, IMU 100 Hz, range 500 Hz, telemetry 50 Hz)")
+        print(f"{'':34s}{head}")
+        print(f"{'  nominal rates (target <= 5 %)':34s}{''.join(rows['nominal'])}")
+        print(f"{f'  + {args.flood_hz:,.0f} foreign msg/s (< 30 %)':34s}{''.join(rows['flood'])}")
+    assert mcap is not None
+    offline = [_offline(mcap, args.out / f"offline-{k}.mcap", p) for k, (_, p) in enumerate(variants)]
+    flight_s = offline[-1][2]
     print(f"  the same {flight_s:.0f} s of inputs in one process, no threads or links:")
-    print(f"    floor: pymavlink parse + mcap raw write            {floor:6.1f} % of one core")
-    print(f"    the recorder's worker (log, synchroniser, frames)  {ours:6.1f} % of one core")
+    print(f"{'    floor: pymavlink parse + mcap raw write':50s}" + "".join(f"{o[0]:12.1f} %" for o in offline))
+    print(f"{'    the recorder worker (log, sync, frames)':50s}" + "".join(f"{o[1]:12.1f} %" for o in offline))
     from icgt.ingest.recompute import recompute
 
     t0 = time.process_time()
@@ -251,6 +312,8 @@ def main() -> int:
         f"  recompute (icgt.ingest.recompute, own settings): {cpu:.1f} s CPU for {flight_s:.0f} s of flight, "
         f"{len(result.frames)} frames -> {per_hour_s / 60:.1f} min per hour of flight at these rates"
     )
+    load = os.getloadavg()
+    print(f"load average at end {load[0]:.1f} {load[1]:.1f} {load[2]:.1f}")
     return 0
 
 

@@ -27,6 +27,8 @@ from icgt.protocol.messages import Ack, ErrorCode, Hello, Message, Ping, TimeSyn
 HANDSHAKE_TIMEOUT_S = 3.0
 COMMAND_TIMEOUT_S = 0.3
 REOPEN_INTERVAL_S = 0.2
+PROMPT_WINDOW_NS = 100_000_000
+"""After each send, the reader reads as soon as bytes arrive for this long [ns] (the reply's stamp)."""
 
 
 class DeviceLinkError(ProtocolError):
@@ -104,7 +106,10 @@ class DeviceLink:
         on_time_sync: TimeSyncCallback,
         baudrate: int = 115200,
         reconnect: bool = True,
+        batch_s: float = 0.0,
     ) -> None:
+        """`batch_s` > 0: between reads, while no reply is awaited, the reader sleeps this long [s] and then
+        takes everything that arrived in one read (see `_read_loop`); 0 reads each USB transfer at once."""
         self.url = url
         self._on_message = on_message
         self._on_event = on_event
@@ -124,7 +129,11 @@ class DeviceLink:
         self._connected = threading.Event()
         self._down_since_ns = 0
         self._rejected_reported = 0
+        self._batch_s = batch_s
+        self._prompt = threading.Event()  # set by send(): the reader stops batching at once
+        self._prompt_until_ns = 0  # reads are prompt until then (a reply is awaited) [ns, host monotonic]
         self.bytes_received = 0
+        self.reads = 0  # read calls that returned bytes (what batching saves)
 
     # ---------------------------------------------------------------- lifecycle
     def start(self) -> Hello:
@@ -145,6 +154,7 @@ class DeviceLink:
 
     def stop(self) -> None:
         self._stop.set()
+        self._prompt.set()  # out of a batching pause
         port = self._port
         if port is not None:
             with contextlib.suppress(Exception):
@@ -189,6 +199,10 @@ class DeviceLink:
             if pending is not None:
                 self._pending[seq] = pending
             frame = encode_frame(message, seq)
+            if self._batch_s > 0.0:
+                # Whatever this is, its answer (an ACK, a TIME_SYNC_REPLY) must be stamped when it arrives.
+                self._prompt_until_ns = time.monotonic_ns() + PROMPT_WINDOW_NS
+                self._prompt.set()
             if isinstance(message, TimeSync):
                 # The send time is taken after framing, right before the bytes go to the kernel: the
                 # field in the message only identifies the request (every microsecond of host-side
@@ -293,7 +307,22 @@ class DeviceLink:
                 continue
             if data:
                 self.bytes_received += len(data)
+                self.reads += 1
                 self._feed(data, host_rx_ns)
+                if self._batch_s > 0.0:
+                    self._pause(host_rx_ns)
+
+    def _pause(self, now_ns: int) -> None:
+        """Between two reads, unless a reply is awaited: sleep `batch_s`, so that one read takes what the
+        device sent meanwhile (it delivers every USB frame, 1 ms or less apart: one wake-up, one read and
+        one decoder call each cost more than their messages). The stamp of a message that arrived during
+        the pause is late by up to `batch_s`; what the clocks use is not: a TIME_SYNC reply comes while
+        reads are prompt (send() ends any pause and keeps reads prompt for PROMPT_WINDOW_NS), and the
+        device's own messages carry device time. A late stamp only makes their host_rx_ns later."""
+        if now_ns < self._prompt_until_ns:
+            return
+        self._prompt.wait(self._batch_s)
+        self._prompt.clear()
 
     @staticmethod
     def _read_chunk(port: serial.SerialBase) -> bytes:

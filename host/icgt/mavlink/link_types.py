@@ -148,6 +148,9 @@ class LinkConfig:
     # `UndecodedFrame`s (header only, no CRC check: kept raw, used for nothing). None decodes everything.
     decode_systems: frozenset[int] | None = None
     udp_receive_buffer_bytes: int = 4 * 1024 * 1024  # Linux's default (~208 KB) overflows in a parameter burst
+    # UDP with kernel receive timestamps only: after draining the socket the reader sleeps this long [s],
+    # so that one wake-up takes many datagrams (their stamps are the kernel's, not the read's). 0: no pause.
+    read_batch_s: float = 0.0
 
     @property
     def effective_autopilot_system(self) -> int:

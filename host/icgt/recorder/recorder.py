@@ -103,6 +103,10 @@ _DEVICE, _EXCHANGE, _DEVICE_EVENT, _MAVLINK, _MAVLINK_EVENT, _TIMESYNC_SENT = ra
 _DRAIN_MAX = 2000  # inputs handled before the worker polls again (bounds frame latency under a flood)
 _WORK_PERIOD_S = 0.01  # the worker wakes this often; the readers never wake it (no switch per message)
 _OTHER_SYSTEMS_BATCH = 500  # other systems' MAVLink frames per /mavlink/other_systems record, at most
+# The readers sleep this long between reads [s] when no stamp depends on it (DeviceLink batch_s: not while a
+# reply is awaited; MavlinkLink read_batch_s: UDP with kernel stamps only): one wake-up per pause, not per
+# USB frame or datagram.
+_READ_BATCH_S = 0.01
 
 
 class Recorder:
@@ -186,6 +190,7 @@ class Recorder:
                 on_message=lambda received, rx_ns: self._inbox.append((_DEVICE, received, rx_ns)),
                 on_event=lambda event: self._inbox.append((_DEVICE_EVENT, event, event.host_ns)),
                 on_time_sync=lambda sample: self._inbox.append((_EXCHANGE, sample, sample.host_rx_ns)),
+                batch_s=_READ_BATCH_S,
             )
             try:
                 return self.device.start()
@@ -493,7 +498,13 @@ class Recorder:
             StreamRate(2, "SYSTEM_TIME", 2.0),
         )
         self.mavlink = MavlinkLink(
-            LinkConfig(url=cfg.url, system_id=cfg.system_id, stream_rates=rates, decode_systems=self._expanded_systems),
+            LinkConfig(
+                url=cfg.url,
+                system_id=cfg.system_id,
+                stream_rates=rates,
+                decode_systems=self._expanded_systems,
+                read_batch_s=_READ_BATCH_S,
+            ),
             on_event=lambda event: self._inbox.append((_MAVLINK_EVENT, event, event.host_ns)),
             on_timesync_sent=lambda tx_ns: self._inbox.append((_TIMESYNC_SENT, tx_ns, tx_ns)),
         )

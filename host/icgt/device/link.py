@@ -383,6 +383,9 @@ class DeviceLink:
             host_tx_ns = self._sync_sent.pop(msg.request_seq, None)
             if host_tx_ns is not None:
                 self._on_time_sync(TimeSyncSample(host_tx_ns, msg.device_rx_t_us, msg.device_tx_t_us, host_rx_ns))
+                with self._tx_lock:  # against a send() between the test and the reset
+                    if not self._sync_sent and not self._pending:
+                        self._prompt_until_ns = 0  # nothing else awaited: batch again at once
             if len(self._sync_sent) > 64:  # replies lost on the wire: forget the oldest requests
                 for seq in sorted(self._sync_sent)[:32]:
                     del self._sync_sent[seq]

@@ -629,7 +629,7 @@ class MavlinkLink:
 
     # ------------------------------------------------------------------ service thread
     def _service_loop(self) -> None:
-        while not self._stop.wait(0.01):
+        while not self._stop.wait(self.config.service_period_s):
             try:
                 self._service_once(self._clock())
             except Exception:

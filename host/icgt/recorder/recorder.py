@@ -398,11 +398,12 @@ class Recorder:
 
     def _on_device_message(self, received: DeviceReceived, host_rx_ns: int) -> None:
         msg = received.message
-        self._write(
-            topics.device_topic(msg.NAME),
-            topics.device_payload(msg, received.seq, received.flags, host_rx_ns),
-            host_rx_ns,
-        )
+        if self.mcap is not None:
+            data = topics.device_payload_json(msg, received.seq, received.flags, host_rx_ns)
+            try:
+                self.mcap.write_encoded(topics.device_topic(msg.NAME), data, self._log_time(host_rx_ns))
+            except RecordingError as exc:
+                self._fatal(exc)
         self.sync.on_device(msg, host_rx_ns)
         if msg.NAME == "EXPOSURE":
             self.exposures += 1

@@ -102,14 +102,14 @@ class RecorderStatus:
 _DEVICE, _EXCHANGE, _DEVICE_EVENT, _MAVLINK, _MAVLINK_EVENT, _TIMESYNC_SENT = range(6)
 _DRAIN_MAX = 5000  # inputs handled before the worker polls again (bounds frame latency under a flood)
 # The worker wakes this often [s]; the readers never wake it (no switch per message). Each wake-up polls the
-# synchroniser (~0.1 ms): at 10 ms that alone was 1 % of a core. Frames wait for later telemetry anyway.
-_WORK_PERIOD_S = 0.04
+# synchroniser (~0.1 ms): every 10 ms that alone was 1 % of a core. Frames wait for later telemetry anyway.
+_WORK_PERIOD_S = 0.05
 _MAVLINK_SERVICE_PERIOD_S = 0.05  # the MAVLink link's liveness / TIMESYNC / rate-request steps [s]
 _OTHER_SYSTEMS_BATCH = 500  # other systems' MAVLink frames per /mavlink/other_systems record, at most
 # The readers sleep this long between reads [s] when no stamp depends on it (DeviceLink batch_s: not while a
 # reply is awaited; MavlinkLink read_batch_s: UDP with kernel stamps only): one wake-up per pause, not per
 # USB frame or datagram.
-_READ_BATCH_S = 0.01
+_READ_BATCH_S = 0.02
 
 
 class Recorder:

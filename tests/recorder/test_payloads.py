@@ -27,7 +27,7 @@ def _filled(cls: type, rng: random.Random) -> object:
         elif isinstance(v, int):
             setattr(msg, f.name, rng.randrange(0, 200))
         elif isinstance(v, str):
-            setattr(msg, f.name, "text \"quoted\" null \u00e9")
+            setattr(msg, f.name, 'text "quoted" null \u00e9')
     return msg
 
 

@@ -29,6 +29,8 @@ COMMAND_TIMEOUT_S = 0.3
 REOPEN_INTERVAL_S = 0.2
 PROMPT_WINDOW_NS = 100_000_000
 """After each send, the reader reads as soon as bytes arrive for this long [ns] (the reply's stamp)."""
+CATCH_UP_TIMEOUT_S = 0.02
+"""How long a TIME_SYNC request waits for a batching reader to take what it held back [s]."""
 
 
 class DeviceLinkError(ProtocolError):
@@ -132,6 +134,7 @@ class DeviceLink:
         self._batch_s = batch_s
         self._prompt = threading.Event()  # set by send(): the reader stops batching at once
         self._prompt_until_ns = 0  # reads are prompt until then (a reply is awaited) [ns, host monotonic]
+        self._caught_up = threading.Event()  # set by the reader when it is prompt and has read everything
         self.bytes_received = 0
         self.reads = 0  # read calls that returned bytes (what batching saves)
 
@@ -245,7 +248,16 @@ class DeviceLink:
         raise last_error or DeviceLinkError(f"{message.NAME} not answered")
 
     def request_time_sync(self) -> None:
-        """Send one TIME_SYNC; the reply arrives through on_time_sync."""
+        """Send one TIME_SYNC; the reply arrives through on_time_sync.
+
+        With `batch_s` the reader is first woken and given up to CATCH_UP_TIMEOUT_S to take what arrived
+        during its pause, so that it waits in select() when the reply comes back: a reply arriving while it
+        decodes a backlog would be stamped late by that much."""
+        if self._batch_s > 0.0:
+            self._caught_up.clear()
+            self._prompt_until_ns = time.monotonic_ns() + PROMPT_WINDOW_NS
+            self._prompt.set()
+            self._caught_up.wait(CATCH_UP_TIMEOUT_S)
         self.send(TimeSync(host_t_ns=time.monotonic_ns()))
 
     # ---------------------------------------------------------------- internals
@@ -298,6 +310,8 @@ class DeviceLink:
                 self._try_reopen()
                 continue
             try:
+                if self._batch_s > 0.0 and time.monotonic_ns() < self._prompt_until_ns:
+                    self._caught_up.set()  # nothing held back: about to wait in select() for the reply
                 data = self._read_chunk(port)
                 # Stamped after the last byte of the chunk is in hand: a frame that completes in it
                 # arrived no later than this (a stamp taken after the first byte could precede it).

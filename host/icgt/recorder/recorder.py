@@ -655,10 +655,6 @@ class Recorder:
             self._on_mavlink_event(payload)
 
     def _work_once(self, now: int) -> None:
-        if self.device is not None and self.device.connected and now >= self._next_sync_ns:
-            with contextlib.suppress(DeviceLinkError):
-                self.device.request_time_sync()
-            self._next_sync_ns = now + int(self.sync.next_exchange_interval_s() * 1e9)
         self._emit(self.sync.poll(now))
         for event in self.sync.take_events():
             self._write_event("sync", event.kind, event.detail, event.host_ns)
@@ -676,6 +672,12 @@ class Recorder:
                 "pending_frames": sync.pending_frames,
                 "sync": sync.counters(),
             }
+        if self.device is not None and self.device.connected and now >= self._next_sync_ns:
+            # Last, so that the worker sleeps while the reply comes back: the device reader stamps it as soon
+            # as it has the GIL, which a worker building frames or records would hold for milliseconds.
+            with contextlib.suppress(DeviceLinkError):
+                self.device.request_time_sync()
+            self._next_sync_ns = now + int(self.sync.next_exchange_interval_s() * 1e9)
 
     def _write_counters(self, now: int) -> None:
         record: dict[str, Any] = {"host_ns": now, "sync": self.sync.counters()}

@@ -622,13 +622,20 @@ class Recorder:
 
     # ------------------------------------------------------------------ worker
     def _work(self) -> None:
-        while not self._stop.wait(_WORK_PERIOD_S):
+        while not self._stop.wait(self._work_wait_s()):
             try:
                 with self._worker_lock:
                     self._drain(limit=_DRAIN_MAX)
                     self._work_once(time.monotonic_ns())
             except Exception:  # the worker must outlive any bug: frames keep being emitted
                 log.exception("recorder worker error (recording continues)")
+
+    def _work_wait_s(self) -> float:
+        """Until the next step [s]: _WORK_PERIOD_S, or less when a TIME_SYNC is due (the exchange rate the
+        clock filter asks for, not rounded up to the period)."""
+        if self.device is None or not self.device.connected:
+            return _WORK_PERIOD_S
+        return min(_WORK_PERIOD_S, max(0.001, (self._next_sync_ns - time.monotonic_ns()) / 1e9))
 
     def _drain(self, limit: int | None) -> None:
         inbox = self._inbox

@@ -17,6 +17,7 @@ import json
 import logging
 import math
 import os
+import sys
 import threading
 import time
 from collections import deque
@@ -104,6 +105,7 @@ _DRAIN_MAX = 5000  # inputs handled before the worker polls again (bounds frame 
 # The worker wakes this often [s]; the readers never wake it (no switch per message). Each wake-up polls the
 # synchroniser (~0.1 ms): every 10 ms that alone was 1 % of a core. Frames wait for later telemetry anyway.
 _WORK_PERIOD_S = 0.05
+_SWITCH_INTERVAL_S = 0.001  # the GIL's switch interval while recording [s] (see start())
 _MAVLINK_SERVICE_PERIOD_S = 0.05  # the MAVLink link's liveness / TIMESYNC / rate-request steps [s]
 _OTHER_SYSTEMS_BATCH = 500  # other systems' MAVLink frames per /mavlink/other_systems record, at most
 # The readers sleep this long between reads [s] when no stamp depends on it (DeviceLink batch_s: not while a
@@ -177,6 +179,10 @@ class Recorder:
         except BaseException:
             self._abandon(path)
             raise
+        # The readers release the GIL for every read; a thread busy in Python (the worker, the log writer) that
+        # grabs it keeps it for the switch interval, so a reader could take one datagram per 5 ms (Python's
+        # default) and a flood backs up in the socket until the kernel drops it. 1 ms bounds that wait.
+        sys.setswitchinterval(min(sys.getswitchinterval(), _SWITCH_INTERVAL_S))
         self._worker = threading.Thread(target=self._work, name="icgt-recorder", daemon=True)
         self._worker.start()
         log.info("recording to %s (device %s, autopilot %s)", path, cfg.device.url, cfg.mavlink.url)

@@ -147,6 +147,7 @@ class Recorder:
         self._snapshot: dict[str, Any] = {}
         self._waiting_for_device = False
         self.failure: IcgtError | None = None
+        self._switch_interval_before: float | None = None  # the GIL switch interval before start() [s]
 
     @property
     def last_status(self) -> Status | None:
@@ -182,7 +183,8 @@ class Recorder:
         # The readers release the GIL for every read; a thread busy in Python (the worker, the log writer) that
         # grabs it keeps it for the switch interval, so a reader could take one datagram per 5 ms (Python's
         # default) and a flood backs up in the socket until the kernel drops it. 1 ms bounds that wait.
-        sys.setswitchinterval(min(sys.getswitchinterval(), _SWITCH_INTERVAL_S))
+        self._switch_interval_before = sys.getswitchinterval()
+        sys.setswitchinterval(min(self._switch_interval_before, _SWITCH_INTERVAL_S))
         self._worker = threading.Thread(target=self._work, name="icgt-recorder", daemon=True)
         self._worker.start()
         log.info("recording to %s (device %s, autopilot %s)", path, cfg.device.url, cfg.mavlink.url)
@@ -286,6 +288,8 @@ class Recorder:
             self._write_counters(time.monotonic_ns())
         self._record_link_summary()
         self._close_log()
+        if self._switch_interval_before is not None:
+            sys.setswitchinterval(self._switch_interval_before)
 
     def wait(self) -> None:
         """Block until stop() is called or a fatal error (full disk) ends the recording."""

@@ -582,6 +582,39 @@ def test_a_burst_is_taken_in_few_reads_each_stamped_once(host, device):
         assert host.events_of("sequence_gap") == []
 
 
+def test_batched_reads_take_a_stream_in_few_reads_and_stamp_replies_promptly(host, device):
+    """With batch_s the reader sleeps between reads (one read per pause, not per message), except while a
+    reply is awaited: a TIME_SYNC_REPLY sent in the middle of the stream is stamped as it arrives, not at
+    the end of a pause (its round trip stays far below the pause)."""
+    batch_s = 0.4
+    stop = threading.Event()
+
+    def stream() -> None:  # a STATUS every 2 ms, as the device's sensors stream
+        while not stop.wait(0.002):
+            device.send(Status(t_us=device.now_us()))
+
+    with started(host, device, batch_s=batch_s) as link:
+        streamer = threading.Thread(target=stream, daemon=True)
+        streamer.start()
+        try:
+            time.sleep(1.0)  # past the handshake's prompt window: batching
+            reads0, n0 = link.reads, len(host.messages_of(Status))
+            time.sleep(2.0)
+            reads, n = link.reads - reads0, len(host.messages_of(Status)) - n0
+            assert n >= 100, f"only {n} STATUS in 2 s"
+            assert reads <= 2.0 / batch_s + 3, f"{reads} reads for {n} messages in 2 s with {batch_s} s pauses"
+            for _ in range(3):
+                time.sleep(0.5)  # back to batching, then in the middle of a pause:
+                k = len(host.syncs)
+                link.request_time_sync()
+                host.wait(lambda k=k: len(host.syncs) > k, why="TIME_SYNC_REPLY")
+        finally:
+            stop.set()
+            streamer.join()
+    for s in host.syncs:
+        assert s.round_trip_ns < batch_s * 1e9 / 2, f"round trip {s.round_trip_ns / 1e6:.1f} ms: stamped late"
+
+
 # --------------------------------------------------------------------------- unplug / replug
 def test_unplug_is_reported_and_replug_reconnects(host, device):
     with started(host, device) as link:

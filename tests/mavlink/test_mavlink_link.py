@@ -305,6 +305,41 @@ def test_datagrams_carry_their_arrival_time_even_when_the_reader_is_late(recorde
         link.stop()
 
 
+def test_batched_udp_reads_keep_each_datagrams_arrival_time(recorder):
+    """read_batch_s: the reader sleeps between drains of the socket, and each datagram still carries its own
+    arrival time (the kernel's), not the time of the read that took it; other systems' frames taken in bulk
+    are counted like the rest."""
+    batch_s = 0.3
+    link, port = make_link(
+        recorder, request_rates=False, timesync=False, decode_systems=frozenset({1}), read_batch_s=batch_s
+    )
+    got: list[MavlinkMessage] = []
+    link.subscribe(got.append, ["ATTITUDE"])
+    link.start()
+    ap = AutopilotPeer(port)
+    stranger = AutopilotPeer(port, system=42, component=1)
+    sent: list[int] = []
+    try:
+        time.sleep(0.5)
+        for k in range(40):  # one every 10 ms: several per pause
+            sent.append(time.monotonic_ns())
+            peer = ap if k % 2 else stranger
+            peer.send(peer.mav.attitude_encode(k, 0, 0, 0, 0, 0, 0))
+            time.sleep(0.01)
+        assert wait_until(lambda: len(got) == 40)
+        by_boot = {int(r.msg.time_boot_ms): r.rx_ns for r in got if r.src_system == 1}
+        lags = [by_boot[k] - sent[k] for k in range(1, 40, 2)]
+        assert max(lags) < batch_s * 1e9 / 3, f"stamps up to {max(lags) / 1e6:.0f} ms after the send: read time"
+        assert min(lags) > -1_000_000
+        stats = link.stats()
+        assert stats.undecoded_frames == 20
+        assert stats.messages_by_type["ATTITUDE"] == 40
+    finally:
+        stranger.close()
+        ap.close()
+        link.stop()
+
+
 def test_subscribe_queue_is_bounded_and_drops_oldest(recorder):
     link, port = make_link(recorder, request_rates=False, timesync=False)
     q = link.subscribe_queue(["ATTITUDE"], maxsize=3)

@@ -49,6 +49,10 @@ HOST_RECEIVED_PERIOD_NS = 1_000_000_000
 # the recorder is killed is not in the file. A successor asks RESEND from there (duplicates across the
 # two files, never a loss).
 HOST_RECEIVED_LAG_NS = 3_000_000_000
+PROMPT_WINDOW_NS = 100_000_000
+"""After each send, the reader reads as soon as bytes arrive for this long [ns] (the reply's stamp)."""
+CATCH_UP_TIMEOUT_S = 0.02
+"""How long a TIME_SYNC request waits for a batching reader to take what it held back [s]."""
 
 
 class DeviceLinkError(ProtocolError):
@@ -124,7 +128,10 @@ class DeviceLink:
         on_time_sync: TimeSyncCallback,
         baudrate: int = 115200,
         reconnect: bool = True,
+        batch_s: float = 0.0,
     ) -> None:
+        """`batch_s` > 0: between reads, while no reply is awaited, the reader sleeps this long [s] and then
+        takes everything that arrived in one read (see `_read_loop`); 0 reads each USB transfer at once."""
         self.url = url
         self._on_message = on_message
         self._on_event = on_event
@@ -144,12 +151,17 @@ class DeviceLink:
         self._connected = threading.Event()
         self._down_since_ns = 0
         self._rejected_reported = 0
+        self._batch_s = batch_s
+        self._prompt = threading.Event()  # set by send(): the reader stops batching at once
+        self._prompt_until_ns = 0  # reads are prompt until then (a reply is awaited) [ns, host monotonic]
+        self._caught_up = threading.Event()  # set by the reader when it is prompt and has read everything
         self.bytes_received = 0
         self.resend = ResendTracker(self._send_quietly, on_loss=self._history_lost)
         self._device_state: DeviceState | None = None
         self._device_state_event = threading.Event()
         self._received_marks: list[tuple[int, int]] = []  # (host ns, HOST_RECEIVED value) not sent yet
         self._next_mark_ns = 0
+        self.reads = 0  # read calls that returned bytes (what batching saves)
 
     # ---------------------------------------------------------------- lifecycle
     def start(self) -> Hello:
@@ -170,6 +182,7 @@ class DeviceLink:
 
     def stop(self) -> None:
         self._stop.set()
+        self._prompt.set()  # out of a batching pause
         port = self._port
         if port is not None:
             with contextlib.suppress(Exception):
@@ -223,6 +236,10 @@ class DeviceLink:
             if pending is not None:
                 self._pending[seq] = pending
             frame = encode_frame(message, seq)
+            if self._batch_s > 0.0:
+                # Whatever this is, its answer (an ACK, a TIME_SYNC_REPLY) must be stamped when it arrives.
+                self._prompt_until_ns = time.monotonic_ns() + PROMPT_WINDOW_NS
+                self._prompt.set()
             if isinstance(message, TimeSync):
                 # The send time is taken after framing, right before the bytes go to the kernel: the
                 # field in the message only identifies the request (every microsecond of host-side
@@ -265,7 +282,16 @@ class DeviceLink:
         raise last_error or DeviceLinkError(f"{message.NAME} not answered")
 
     def request_time_sync(self) -> None:
-        """Send one TIME_SYNC; the reply arrives through on_time_sync."""
+        """Send one TIME_SYNC; the reply arrives through on_time_sync.
+
+        With `batch_s` the reader is first woken and given up to CATCH_UP_TIMEOUT_S to take what arrived
+        during its pause, so that it waits in select() when the reply comes back: a reply arriving while it
+        decodes a backlog would be stamped late by that much."""
+        if self._batch_s > 0.0:
+            self._caught_up.clear()
+            self._prompt_until_ns = time.monotonic_ns() + PROMPT_WINDOW_NS
+            self._prompt.set()
+            self._caught_up.wait(CATCH_UP_TIMEOUT_S)
         self.send(TimeSync(host_t_ns=time.monotonic_ns()))
 
     # ---------------------------------------------------------------- internals
@@ -318,6 +344,8 @@ class DeviceLink:
                 self._try_reopen()
                 continue
             try:
+                if self._batch_s > 0.0 and time.monotonic_ns() < self._prompt_until_ns:
+                    self._caught_up.set()  # nothing held back: about to wait in select() for the reply
                 data = self._read_chunk(port)
                 # Stamped after the last byte of the chunk is in hand: a frame that completes in it
                 # arrived no later than this (a stamp taken after the first byte could precede it).
@@ -327,9 +355,12 @@ class DeviceLink:
                 continue
             if data:
                 self.bytes_received += len(data)
+                self.reads += 1
                 self._feed(data, host_rx_ns)
             self.resend.tick()
             self._report_received(host_rx_ns)
+            if data and self._batch_s > 0.0:
+                self._pause(host_rx_ns)
 
     def _send_quietly(self, message: Message) -> None:
         self.send(message)  # DeviceLinkError when down: the tracker asks again later
@@ -360,6 +391,18 @@ class DeviceLink:
         self._received_marks = [m for m in self._received_marks if now_ns - m[0] < HOST_RECEIVED_LAG_NS]
         with contextlib.suppress(DeviceLinkError):
             self.send(HostReceived(next_seq=due[-1][1]))
+
+    def _pause(self, now_ns: int) -> None:
+        """Between two reads, unless a reply is awaited: sleep `batch_s`, so that one read takes what the
+        device sent meanwhile (it delivers every USB frame, 1 ms or less apart: one wake-up, one read and
+        one decoder call each cost more than their messages). The stamp of a message that arrived during
+        the pause is late by up to `batch_s`; what the clocks use is not: a TIME_SYNC reply comes while
+        reads are prompt (send() ends any pause and keeps reads prompt for PROMPT_WINDOW_NS), and the
+        device's own messages carry device time. A late stamp only makes their host_rx_ns later."""
+        if now_ns < self._prompt_until_ns:
+            return
+        self._prompt.wait(self._batch_s)
+        self._prompt.clear()
 
     @staticmethod
     def _read_chunk(port: serial.SerialBase) -> bytes:
@@ -423,6 +466,9 @@ class DeviceLink:
             host_tx_ns = self._sync_sent.pop(msg.request_seq, None)
             if host_tx_ns is not None:
                 self._on_time_sync(TimeSyncSample(host_tx_ns, msg.device_rx_t_us, msg.device_tx_t_us, host_rx_ns))
+                with self._tx_lock:  # against a send() between the test and the reset
+                    if not self._sync_sent and not self._pending:
+                        self._prompt_until_ns = 0  # nothing else awaited: batch again at once
             if len(self._sync_sent) > 64:  # replies lost on the wire: forget the oldest requests
                 for seq in sorted(self._sync_sent)[:32]:
                     del self._sync_sent[seq]

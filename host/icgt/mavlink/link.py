@@ -39,7 +39,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from icgt.mavlink.autopilot_rules import BOOT_CLOCK_TYPES, REBOOT_BACKSTEP_MS, is_autopilot_heartbeat
-from icgt.mavlink.frames import split_datagram
+from icgt.mavlink.frames import UndecodedFrame, split_datagram
 from icgt.mavlink.link_types import (
     DEFAULT_STREAM_RATES,
     MAV_COMP_ID_CAMERA,
@@ -82,6 +82,7 @@ log = logging.getLogger(__name__)
 _SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 _SCM_TIMESTAMPNS = _SO_TIMESTAMPNS
 _TIMESPEC_CMSG_SPACE = socket.CMSG_SPACE(16)
+_STX_V1 = 0xFE  # a MAVLink 1 frame's first byte
 
 
 class MavlinkLink:
@@ -351,11 +352,15 @@ class MavlinkLink:
         if not ready:
             return
         if self._datagram:
-            for _ in range(256):  # drain the socket, stamping each datagram
+            for _ in range(1024):  # drain the socket, stamping each datagram
                 got = self._recv_datagram(conn)
                 if got is None:
-                    return
+                    break
                 self._feed(*got)
+            if self._kernel_stamps and self.config.read_batch_s > 0.0:
+                # Each datagram carries its arrival time from the kernel: reading it later changes no stamp,
+                # and one wake-up per pause instead of one per datagram saves most of the reader's CPU.
+                self._stop.wait(self.config.read_batch_s)
         elif isinstance(conn, mavutil.mavtcpin):
             had_client = conn.port is not None
             data = conn.recv(4096)  # accepts a client when there is none
@@ -430,10 +435,8 @@ class MavlinkLink:
             split = split_datagram(data, decode)
             if split is not None:
                 data, others = split
-                with self._lock:
-                    self._undecoded += len(others)
-                for frame in others:
-                    self._handle(MavlinkMessage(frame, rx_ns))
+                if others:
+                    self._pass_on_undecoded(others, rx_ns)
                 if not data:
                     return
         truncated = False
@@ -453,6 +456,40 @@ class MavlinkLink:
             self._bad_frames += int(truncated)
         for msg in msgs:
             self._handle(MavlinkMessage(msg, rx_ns))
+
+    def _pass_on_undecoded(self, frames: list[UndecodedFrame], rx_ns: int) -> None:
+        """Other systems' frames of one datagram: counted under one lock, then to the subscribers.
+
+        What `_handle` does for each, less what cannot apply to them: they are never BAD_DATA, and a frame
+        with our system id or the autopilot's (not the case when decode_systems holds them, as the recorder's
+        does) still goes through `_handle` (echo and same-id checks, liveness)."""
+        mine = (self.config.system_id, self._ap_system)
+        if any(f.src_system in mine for f in frames):
+            with self._lock:
+                self._undecoded += len(frames)
+            for frame in frames:
+                self._handle(MavlinkMessage(frame, rx_ns))
+            return
+        with self._lock:
+            self._undecoded += len(frames)
+            by_type = self._by_type
+            v1 = 0
+            for frame in frames:
+                mtype = frame.get_type()
+                by_type[mtype] = by_type.get(mtype, 0) + 1
+                v1 += frame.buf[0] == _STX_V1
+            self._v1 += v1
+            self._v2 += len(frames) - v1
+            subs = self._subs
+        for frame in frames:
+            rec = MavlinkMessage(frame, rx_ns)
+            mtype = frame.get_type()
+            for sub in subs:
+                if sub.types is None or mtype in sub.types:
+                    try:
+                        sub.callback(rec)
+                    except Exception:
+                        self._count_callback_error(f"subscriber {sub.callback!r} on {mtype}")
 
     def _handle(self, rec: MavlinkMessage) -> None:
         msg = rec.msg
@@ -635,7 +672,7 @@ class MavlinkLink:
 
     # ------------------------------------------------------------------ service thread
     def _service_loop(self) -> None:
-        while not self._stop.wait(0.01):
+        while not self._stop.wait(self.config.service_period_s):
             try:
                 self._service_once(self._clock())
             except Exception:

@@ -152,6 +152,11 @@ class LinkConfig:
     # received message says whether it carried a valid signature (msg.get_signed()). Never in a repr.
     signing_key: bytes | None = dataclasses.field(default=None, repr=False)
     signing_link_id: int = 0
+    # UDP with kernel receive timestamps only: after draining the socket the reader sleeps this long [s],
+    # so that one wake-up takes many datagrams (their stamps are the kernel's, not the read's). 0: no pause.
+    read_batch_s: float = 0.0
+    # The service thread (liveness, TIMESYNC and stream-rate requests) runs this often [s].
+    service_period_s: float = 0.01
 
     @property
     def effective_autopilot_system(self) -> int:

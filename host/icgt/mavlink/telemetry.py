@@ -477,6 +477,11 @@ class TelemetryStore:
         with self._lock:
             return dict(self._counts)
 
+    def count_other_source(self, mtype: str) -> None:
+        """A message of another system than the autopilot's: counted as `ingest` counts it, nothing stored."""
+        if mtype in TELEMETRY_TYPES:
+            self._count("other_source")
+
     def _count(self, key: str) -> None:
         with self._lock:
             self._counts[key] += 1

@@ -17,6 +17,7 @@ import json
 import logging
 import math
 import os
+import sys
 import threading
 import time
 from collections import deque
@@ -59,8 +60,8 @@ from icgt.protocol.messages import (
 from icgt.recorder import capture, topics, views
 from icgt.recorder.camera_link import CAMERA_IMAGES_SCHEMA, CameraImages, build_camera
 from icgt.recorder.config import RecorderConfig
-from icgt.recorder.views import FoxgloveViews
 from icgt.recorder.resync import TakeOver, take_over
+from icgt.recorder.views import FoxgloveViews
 from icgt.recording import McapRecorder, RecordingError, layout
 from icgt.recording.writer import McapLogHandler
 from icgt.sync import SyncConfig, Synchroniser
@@ -102,9 +103,17 @@ class RecorderStatus:
 
 # Inputs from the reader threads to the worker, tagged by kind.
 _DEVICE, _EXCHANGE, _DEVICE_EVENT, _MAVLINK, _MAVLINK_EVENT, _TIMESYNC_SENT = range(6)
-_DRAIN_MAX = 2000  # inputs handled before the worker polls again (bounds frame latency under a flood)
-_WORK_PERIOD_S = 0.01  # the worker wakes this often; the readers never wake it (no switch per message)
+_DRAIN_MAX = 5000  # inputs handled before the worker polls again (bounds frame latency under a flood)
+# The worker wakes this often [s]; the readers never wake it (no switch per message). Each wake-up polls the
+# synchroniser (~0.1 ms): every 10 ms that alone was 1 % of a core. Frames wait for later telemetry anyway.
+_WORK_PERIOD_S = 0.05
+_SWITCH_INTERVAL_S = 0.001  # the GIL's switch interval while recording [s] (see start())
+_MAVLINK_SERVICE_PERIOD_S = 0.05  # the MAVLink link's liveness / TIMESYNC / rate-request steps [s]
 _OTHER_SYSTEMS_BATCH = 500  # other systems' MAVLink frames per /mavlink/other_systems record, at most
+# The readers sleep this long between reads [s] when no stamp depends on it (DeviceLink batch_s: not while a
+# reply is awaited; MavlinkLink read_batch_s: UDP with kernel stamps only): one wake-up per pause, not per
+# USB frame or datagram.
+_READ_BATCH_S = 0.02
 
 
 class Recorder:
@@ -158,6 +167,7 @@ class Recorder:
         self._takeover: TakeOver | None = None
         self.failure: IcgtError | None = None
         self._sensors = config.sensors  # what the device was configured with (a sensor that does not answer: off)
+        self._switch_interval_before: float | None = None  # the GIL switch interval before start() [s]
 
     @property
     def last_status(self) -> Status | None:
@@ -199,6 +209,11 @@ class Recorder:
         except BaseException:
             self._abandon(path)
             raise
+        # The readers release the GIL for every read; a thread busy in Python (the worker, the log writer) that
+        # grabs it keeps it for the switch interval, so a reader could take one datagram per 5 ms (Python's
+        # default) and a flood backs up in the socket until the kernel drops it. 1 ms bounds that wait.
+        self._switch_interval_before = sys.getswitchinterval()
+        sys.setswitchinterval(min(self._switch_interval_before, _SWITCH_INTERVAL_S))
         self._worker = threading.Thread(target=self._work, name="icgt-recorder", daemon=True)
         self._worker.start()
         log.info("recording to %s (device %s, autopilot %s)", path, cfg.device.url, cfg.mavlink.url)
@@ -215,6 +230,7 @@ class Recorder:
                 on_message=lambda received, rx_ns: self._inbox.append((_DEVICE, received, rx_ns)),
                 on_event=lambda event: self._inbox.append((_DEVICE_EVENT, event, event.host_ns)),
                 on_time_sync=lambda sample: self._inbox.append((_EXCHANGE, sample, sample.host_rx_ns)),
+                batch_s=_READ_BATCH_S,
             )
             try:
                 return self.device.start()
@@ -320,6 +336,8 @@ class Recorder:
             self._write_counters(time.monotonic_ns())
         self._record_link_summary()
         self._close_log()
+        if self._switch_interval_before is not None:
+            sys.setswitchinterval(self._switch_interval_before)
 
     def wait(self) -> None:
         """Block until stop() is called or a fatal error (full disk) ends the recording."""
@@ -433,11 +451,12 @@ class Recorder:
 
     def _on_device_message(self, received: DeviceReceived, host_rx_ns: int) -> None:
         msg = received.message
-        self._write(
-            topics.device_topic(msg.NAME),
-            topics.device_payload(msg, received.seq, received.flags, host_rx_ns),
-            host_rx_ns,
-        )
+        if self.mcap is not None:
+            data = topics.device_payload_json(msg, received.seq, received.flags, host_rx_ns)
+            try:
+                self.mcap.write_encoded(topics.device_topic(msg.NAME), data, publish_time_ns=self._log_time(host_rx_ns))
+            except RecordingError as exc:
+                self._fatal(exc)
         self.sync.on_device(msg, host_rx_ns)
         if msg.NAME == "EXPOSURE":
             self.exposures += 1
@@ -539,6 +558,8 @@ class Recorder:
                 stream_rates=rates,
                 decode_systems=self._expanded_systems,
                 signing_key=self._signing_key,
+                read_batch_s=_READ_BATCH_S,
+                service_period_s=_MAVLINK_SERVICE_PERIOD_S,
             ),
             on_event=lambda event: self._inbox.append((_MAVLINK_EVENT, event, event.host_ns)),
             on_timesync_sent=lambda tx_ns: self._inbox.append((_TIMESYNC_SENT, tx_ns, tx_ns)),
@@ -599,13 +620,20 @@ class Recorder:
 
     # ------------------------------------------------------------------ worker
     def _work(self) -> None:
-        while not self._stop.wait(_WORK_PERIOD_S):
+        while not self._stop.wait(self._work_wait_s()):
             try:
                 with self._worker_lock:
                     self._drain(limit=_DRAIN_MAX)
                     self._work_once(time.monotonic_ns())
             except Exception:  # the worker must outlive any bug: frames keep being emitted
                 log.exception("recorder worker error (recording continues)")
+
+    def _work_wait_s(self) -> float:
+        """Until the next step [s]: _WORK_PERIOD_S, or less when a TIME_SYNC is due (the exchange rate the
+        clock filter asks for, not rounded up to the period)."""
+        if self.device is None or not self.device.connected:
+            return _WORK_PERIOD_S
+        return min(_WORK_PERIOD_S, max(0.001, (self._next_sync_ns - time.monotonic_ns()) / 1e9))
 
     def _drain(self, limit: int | None) -> None:
         inbox = self._inbox
@@ -632,10 +660,6 @@ class Recorder:
             self._on_mavlink_event(payload)
 
     def _work_once(self, now: int) -> None:
-        if self.device is not None and self.device.connected and now >= self._next_sync_ns:
-            with contextlib.suppress(DeviceLinkError):
-                self.device.request_time_sync()
-            self._next_sync_ns = now + int(self.sync.next_exchange_interval_s() * 1e9)
         self._emit(self.sync.poll(now))
         for event in self.sync.take_events():
             self._write_event("sync", event.kind, event.detail, event.host_ns)
@@ -653,6 +677,12 @@ class Recorder:
                 "pending_frames": sync.pending_frames,
                 "sync": sync.counters(),
             }
+        if self.device is not None and self.device.connected and now >= self._next_sync_ns:
+            # Last, so that the worker sleeps while the reply comes back: the device reader stamps it as soon
+            # as it has the GIL, which a worker building frames or records would hold for milliseconds.
+            with contextlib.suppress(DeviceLinkError):
+                self.device.request_time_sync()
+            self._next_sync_ns = now + int(self.sync.next_exchange_interval_s() * 1e9)
 
     def _write_counters(self, now: int) -> None:
         record: dict[str, Any] = {"host_ns": now, "sync": self.sync.counters()}

@@ -292,6 +292,21 @@ class McapRecorder:
             data = entry.encode(message)
         except (TypeError, ValueError) as exc:
             raise RecordingError(f"cannot encode a message for {topic}: {exc}") from exc
+        self._write_data(topic, entry, data, log_time_ns, publish_time_ns)
+
+    def write_encoded(
+        self, topic: str, data: bytes, log_time_ns: int | None = None, publish_time_ns: int | None = None
+    ) -> None:
+        """Records one message already encoded in its topic's encoding (the caller keeps it valid: a fast path
+        for a hot topic, e.g. JSON built without a mapping); otherwise as `write`. The topic must be registered."""
+        entry = self._topics.get(topic)
+        if entry is None:
+            raise RecordingError(f"topic {topic}: register it before writing encoded messages")
+        self._write_data(topic, entry, data, log_time_ns, publish_time_ns)
+
+    def _write_data(
+        self, topic: str, entry: _Topic, data: bytes, log_time_ns: int | None, publish_time_ns: int | None
+    ) -> None:
         if log_time_ns is not None:
             self._enqueue(self._message_item(entry, log_time_ns, publish_time_ns, data))
             log_time = log_time_ns

@@ -195,6 +195,11 @@ class Synchroniser:
     def on_mavlink(self, msg: Any, rx_ns: int) -> TimesyncReply | None:
         """Any MAVLink message; returns the TIMESYNC round trip when it was a reply to us."""
         self.counts["mavlink_messages"] += 1
+        if msg.get_srcSystem() != self.autopilot.system:
+            # Another system (a ground station, another vehicle, most of a flood): nothing of it reaches the
+            # clocks or the poses; only the telemetry store counts it, as ingest() would.
+            self.telemetry.count_other_source(str(msg.get_type()))
+            return None
         mtype = str(msg.get_type())
         fresh = self.autopilot.observe(msg, mtype, rx_ns)
         if fresh is not None and fresh is not Freshness.SAME:

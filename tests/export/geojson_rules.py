@@ -39,13 +39,16 @@ def _position(p: Any, where: str, errors: list[str]) -> None:
 
 
 def signed_area(ring: list[list[float]]) -> tuple[float, float]:
-    """(signed area, perimeter^2) of a closed ring in an equirectangular plane at its mean latitude."""
-    k = math.cos(math.radians(sum(p[1] for p in ring) / len(ring)))
+    """(signed area, perimeter^2) of a closed ring in an equirectangular plane at its mean latitude,
+    relative to its first position (absolute degrees would leave only cancellation noise for small rings)."""
+    k = math.cos(math.radians(sum(p[1] for p in ring[:-1]) / (len(ring) - 1)))
+    x_ref, y_ref = ring[0][0], ring[0][1]
+    pts = [((p[0] - x_ref) * k, p[1] - y_ref) for p in ring]
     a2 = 0.0
     perim = 0.0
-    for (x0, y0, *_), (x1, y1, *_) in itertools.pairwise(ring):
-        a2 += x0 * k * y1 - x1 * k * y0
-        perim += math.hypot((x1 - x0) * k, y1 - y0)
+    for (x0, y0), (x1, y1) in itertools.pairwise(pts):
+        a2 += x0 * y1 - x1 * y0
+        perim += math.hypot(x1 - x0, y1 - y0)
     return a2 / 2.0, perim * perim
 
 

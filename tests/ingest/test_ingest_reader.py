@@ -126,12 +126,11 @@ def test_metadata_topics_and_raw_streams(flight: Flight) -> None:
         assert topics[topic] > 0, topic
     exposures = list(rec.messages("/device/exposure"))
     assert len(exposures) == topics["/device/exposure"]
-    assert exposures == [
-        (t, d)
-        for t, d in zip(
-            _log_times(flight.mcap, "/device/exposure"), _official(flight.mcap, "/device/exposure"), strict=True
-        )
-    ]
+    # messages() gives the data's time (the MCAP publish time: here its receipt), not the log time (when
+    # the recorder queued it, later, which keeps the file in log-time order)
+    times = _times(flight.mcap, "/device/exposure")
+    assert exposures == [(t, d) for (t, _), d in zip(times, _official(flight.mcap, "/device/exposure"), strict=True)]
+    assert all(log_time >= publish for publish, log_time in times)
     t, gpi = next(rec.messages("/mavlink/global_position_int"))
     assert {"raw", "host_rx_ns", "lat", "lon"} <= set(gpi) and t > 1.7e18
     fix = next(rec.messages("/frames/location"))[1]  # a protobuf topic comes back as a dict too
@@ -140,9 +139,11 @@ def test_metadata_topics_and_raw_streams(flight: Flight) -> None:
     assert order.count("/frames") == topics["/frames"] and order.index("/device/exposure") < order.index("/frames")
 
 
-def _log_times(path: Path, topic: str) -> list[int]:
+def _times(path: Path, topic: str) -> list[tuple[int, int]]:
+    """(publish time, log time) of each message of a topic in file order, by the official reader [ns]."""
     with path.open("rb") as f:
-        return [m.log_time for _, _, m in make_reader(f).iter_messages(topics=[topic], log_time_order=False)]
+        reader = make_reader(f)
+        return [(m.publish_time, m.log_time) for _, _, m in reader.iter_messages(topics=[topic], log_time_order=False)]
 
 
 def test_importing_icgt_stays_light() -> None:

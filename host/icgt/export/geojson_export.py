@@ -55,13 +55,16 @@ def _position(lon: float, lat: float, alt_msl: float | None, geoid_separation_m:
 
 
 def ring_signed_area(ring: Sequence[Sequence[float]]) -> tuple[float, float]:
-    """(signed area, perimeter) of a closed lon/lat ring in a local equirectangular plane (deg units)."""
-    lat0 = math.radians(sum(p[1] for p in ring) / len(ring))
-    k = math.cos(lat0)
+    """(signed area, perimeter) of a closed lon/lat ring in a local equirectangular plane at its mean
+    latitude (deg units; > 0: counterclockwise). Summed relative to the first position: in absolute
+    degrees (products of ~100 degrees) the cancellation noise, ~1e-12 deg^2, is the area of a ring a
+    few cm across, and the sign of a small or near-vertical footprint would be a coin toss."""
+    k = math.cos(math.radians(sum(p[1] for p in ring[:-1]) / (len(ring) - 1)))
+    x_ref, y_ref = ring[0][0], ring[0][1]
     area2 = 0.0
     perim = 0.0
     for a, b in itertools.pairwise(ring):
-        ax, ay, bx, by = a[0] * k, a[1], b[0] * k, b[1]
+        ax, ay, bx, by = (a[0] - x_ref) * k, a[1] - y_ref, (b[0] - x_ref) * k, b[1] - y_ref
         area2 += ax * by - bx * ay
         perim += math.hypot(bx - ax, by - ay)
     return area2 / 2.0, perim

@@ -13,9 +13,7 @@ RFC 7946 (whose coordinates are WGS84 only), and says so in its "icgt_face_frame
 
 from __future__ import annotations
 
-import itertools
 import json
-import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -24,21 +22,11 @@ import numpy as np
 import shapely
 from shapely.geometry.polygon import orient
 
+from icgt.export.geojson_export import ring_signed_area
 from icgt.geodesy import LocalFrame
 from icgt.mapping import MappingError
 from icgt.mapping.model import CRACK, Instance, midpoint
 from icgt.mapping.surface import Face, face_wgs84
-
-
-def _signed_area(coords: list[list[float]]) -> float:
-    """Twice the signed area of a ring [lon, lat] in an equirectangular plane at its mean latitude
-    (> 0: counterclockwise), summed over the closed ring in absolute degrees, as readers compute it."""
-    ring = [*coords, coords[0]]
-    k = math.cos(math.radians(sum(c[1] for c in ring) / len(ring)))
-    a2 = 0.0
-    for (x0, y0), (x1, y1) in itertools.pairwise(ring):
-        a2 += x0 * k * y1 - x1 * k * y0
-    return a2
 
 
 def _props(inst: Instance, origin: LocalFrame) -> dict[str, Any]:
@@ -81,7 +69,7 @@ def features_wgs84(
         pts = np.stack([np.atleast_1d(lon), np.atleast_1d(lat)], axis=1)
         coords = [[round(float(p[0]), 9), round(float(p[1]), 9)] for p in pts]
         alts = [float(a) for a in np.atleast_1d(alt)]
-        if inst.kind != CRACK and _signed_area(coords) < 0:
+        if inst.kind != CRACK and ring_signed_area([*coords, coords[0]])[0] < 0:
             # the right-hand rule, judged on the written (rounded) positions: a ring on a vertical face
             # has almost no area on the map, and rounding alone could turn it the other way
             coords, alts = coords[::-1], alts[::-1]

@@ -165,6 +165,7 @@ class Recorder:
         self._snapshot: dict[str, Any] = {}
         self._waiting_for_device = False
         self._takeover: TakeOver | None = None
+        self._ready = threading.Event()  # set once start() has completed: control commands wait for it
         self.failure: IcgtError | None = None
         self._sensors = config.sensors  # what the device was configured with (a sensor that does not answer: off)
         self._switch_interval_before: float | None = None  # the GIL switch interval before start() [s]
@@ -216,6 +217,7 @@ class Recorder:
         sys.setswitchinterval(min(self._switch_interval_before, _SWITCH_INTERVAL_S))
         self._worker = threading.Thread(target=self._work, name="icgt-recorder", daemon=True)
         self._worker.start()
+        self._ready.set()
         log.info("recording to %s (device %s, autopilot %s)", path, cfg.device.url, cfg.mavlink.url)
         return path
 
@@ -761,6 +763,12 @@ class Recorder:
         command = request.get("command")
         if command == "status":
             return {"ok": True, "status": asdict(self.status())}
+        if command in ("start", "stop") and not self._ready.wait(CONTROL_READY_WAIT_S):
+            # The control socket is up while the recorder still waits for, or configures, the device: a capture
+            # started then would make the device refuse its CONFIGURE (busy capturing) and fail the start.
+            what = "waiting for the device" if self._waiting_for_device else "connecting and configuring"
+            return {"error": f"the recorder is still starting ({what}): {command} not done; try again once "
+                    "`icgt status` answers with the recording"}  # fmt: skip
         if command == "start":
             self.start_capture(request.get("interval_s"), request.get("count", 0))
             return {"ok": True}
@@ -768,6 +776,9 @@ class Recorder:
             self.stop_capture()
             return {"ok": True}
         return {"error": f"unknown command {command!r} (start, stop, status)"}
+
+
+CONTROL_READY_WAIT_S = 4.0  # how long a start/stop on the control socket waits for a recorder still starting [s]
 
 
 class CaptureRequestError(LimitError):

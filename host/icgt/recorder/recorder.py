@@ -165,7 +165,7 @@ class Recorder:
         self._snapshot: dict[str, Any] = {}
         self._waiting_for_device = False
         self._takeover: TakeOver | None = None
-        self._ready = threading.Event()  # set once start() has completed: control commands wait for it
+        self._starting = threading.Event()  # set while start() runs: control start/stop wait for it to end
         self.failure: IcgtError | None = None
         self._sensors = config.sensors  # what the device was configured with (a sensor that does not answer: off)
         self._switch_interval_before: float | None = None  # the GIL switch interval before start() [s]
@@ -182,6 +182,7 @@ class Recorder:
         removed again if anything after that fails."""
         cfg = self.config
         out = _output_dir(cfg.output.dir)
+        self._starting.set()
         if self._control_path is not None:
             # First, so that `icgt status` can say "waiting for the device" while it is not there yet.
             self.control = ControlServer(self._control_path, self._handle_control)
@@ -217,7 +218,7 @@ class Recorder:
         sys.setswitchinterval(min(self._switch_interval_before, _SWITCH_INTERVAL_S))
         self._worker = threading.Thread(target=self._work, name="icgt-recorder", daemon=True)
         self._worker.start()
-        self._ready.set()
+        self._starting.clear()
         log.info("recording to %s (device %s, autopilot %s)", path, cfg.device.url, cfg.mavlink.url)
         return path
 
@@ -763,7 +764,7 @@ class Recorder:
         command = request.get("command")
         if command == "status":
             return {"ok": True, "status": asdict(self.status())}
-        if command in ("start", "stop") and not self._ready.wait(CONTROL_READY_WAIT_S):
+        if command in ("start", "stop") and not _wait_clear(self._starting, CONTROL_READY_WAIT_S):
             # The control socket is up while the recorder still waits for, or configures, the device: a capture
             # started then would make the device refuse its CONFIGURE (busy capturing) and fail the start.
             what = "waiting for the device" if self._waiting_for_device else "connecting and configuring"
@@ -779,6 +780,16 @@ class Recorder:
 
 
 CONTROL_READY_WAIT_S = 4.0  # how long a start/stop on the control socket waits for a recorder still starting [s]
+
+
+def _wait_clear(flag: threading.Event, timeout_s: float) -> bool:
+    """True once `flag` is clear (within timeout_s)."""
+    deadline = time.monotonic() + timeout_s
+    while flag.is_set():
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.02)
+    return True
 
 
 class CaptureRequestError(LimitError):

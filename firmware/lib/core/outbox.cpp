@@ -75,12 +75,7 @@ Outbox::ResendStep Outbox::step_resend() {
   HistoryEntry e;
   if (left != 0 && history_.next_kept(job.next, search_end, e)) {
     count_missing(job, e.seq);
-    std::size_t offset = 0;
-    if (resync_) {
-      wire_[0] = 0;
-      offset = 1;
-      resync_ = false;
-    }
+    const std::size_t offset = take_resync_prefix();
     proto::FrameHeader h;
     h.type = e.type;
     h.flags = static_cast<uint8_t>(proto::FrameFlags::retransmit);
@@ -146,12 +141,7 @@ bool Outbox::build_from(SpscQueue<QueuedBody<N>, C>& q, uint64_t now_us) {
       slot.len = static_cast<uint8_t>(reply.encode(slot.body, sizeof slot.body));
     }
   }
-  std::size_t offset = 0;
-  if (resync_) {
-    wire_[0] = 0;
-    offset = 1;
-    resync_ = false;
-  }
+  const std::size_t offset = take_resync_prefix();
   proto::FrameHeader h;
   h.type = slot.type;
   h.seq = seq_;
@@ -176,6 +166,13 @@ OutboxCounters Outbox::counters() const {
   c.frames_resent = frames_resent_;
   c.sent_while_down = sent_while_down_;
   return c;
+}
+
+std::size_t Outbox::take_resync_prefix() {
+  if (!resync_) return 0;
+  wire_[0] = 0;  // a delimiter first: ends whatever half frame the host still holds
+  resync_ = false;
+  return 1;
 }
 
 }  // namespace icgt::core

@@ -92,6 +92,8 @@ class Outbox {
   }
 
  private:
+  // 1 after writing the 0x00 a resync owes into wire_[0] (clearing it), else 0: where the frame starts.
+  [[nodiscard]] std::size_t take_resync_prefix();
   template <std::size_t N, std::size_t C, class Msg>
   [[nodiscard]] static bool push_to(SpscQueue<QueuedBody<N>, C>& q, const Msg& msg) {
     QueuedBody<N> slot;

@@ -15,7 +15,7 @@ from typing import Any
 
 import msgspec
 
-from icgt.device.limits import BoardLimits, LimitError, check_capture, check_feedback, check_sensors
+from icgt.device.limits import BoardLimits, LimitError, check_capture
 from icgt.errors import IcgtError
 from icgt.mavlink.camera import CommandResult, HandlerResult
 from icgt.protocol.messages import CaptureMode, Configure, ErrorCode, Limit, PinPolarity, StartCapture
@@ -35,16 +35,7 @@ def _us(seconds: float) -> int:
 def configure_command(sensors: SensorsSection, limits: BoardLimits) -> Configure:
     """CONFIGURE for these sensor settings, checked against the board's limits (LimitError)."""
     s = sensors
-    check_sensors(
-        imu_rate_hz=s.imu_rate_hz,
-        imu_mode=s.imu_mode_code,
-        range_rate_hz=s.range_rate_hz,
-        lidar_model=s.lidar_model_code,
-        lidar_preset=s.lidar_preset,
-        lidar_bias_every=s.lidar_bias_every,
-        limits=limits,
-    )
-    check_feedback(s.feedback_timeout_s, s.feedback_min_lag_s, limits)
+    s.check_limits(limits)
     polarity = int(PinPolarity.FOCUS_ACTIVE_HIGH | PinPolarity.SHUTTER_ACTIVE_HIGH | PinPolarity.PPS_RISING)
     if s.feedback_active_high:
         polarity |= int(PinPolarity.FEEDBACK_ACTIVE_HIGH)

@@ -71,7 +71,7 @@ from typing import Annotated, Any, Literal
 import msgspec
 from msgspec import Meta
 
-from icgt.device.limits import LimitError, check_capture, check_feedback, check_sensors
+from icgt.device.limits import CORE, BoardLimits, LimitError, check_capture, check_feedback, check_sensors
 from icgt.errors import IcgtError
 from icgt.geotag import GeotagConfig
 from icgt.protocol.messages import LidarModel
@@ -163,17 +163,22 @@ class SensorsSection(_Section, frozen=True, kw_only=True):
     def lidar_model_code(self) -> LidarModel:
         return {"none": LidarModel.NONE, "v3": LidarModel.V3, "v3hp": LidarModel.V3HP}[self.lidar_model]
 
+    def check_limits(self, limits: BoardLimits = CORE) -> None:
+        """LimitError unless a board with these limits (default: what every board allows) takes these settings."""
+        check_sensors(
+            imu_rate_hz=self.imu_rate_hz,
+            imu_mode=self.imu_mode_code,
+            range_rate_hz=self.range_rate_hz,
+            lidar_model=self.lidar_model_code,
+            lidar_preset=self.lidar_preset,
+            lidar_bias_every=self.lidar_bias_every,
+            limits=limits,
+        )
+        check_feedback(self.feedback_timeout_s, self.feedback_min_lag_s, limits)
+
     def __post_init__(self) -> None:
         try:
-            check_sensors(
-                imu_rate_hz=self.imu_rate_hz,
-                imu_mode=self.imu_mode_code,
-                range_rate_hz=self.range_rate_hz,
-                lidar_model=self.lidar_model_code,
-                lidar_preset=self.lidar_preset,
-                lidar_bias_every=self.lidar_bias_every,
-            )
-            check_feedback(self.feedback_timeout_s, self.feedback_min_lag_s)
+            self.check_limits()
         except LimitError as exc:
             raise ValueError(str(exc)) from None
 

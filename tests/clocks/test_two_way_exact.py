@@ -8,7 +8,6 @@ import random
 
 import numpy as np
 import pytest
-
 from icgt.clocks.two_way import _concave_argmax, _level_crossing, _TwoWayLine
 
 

@@ -8,6 +8,7 @@ import random
 
 import numpy as np
 import pytest
+
 from icgt.clocks.two_way import _concave_argmax, _level_crossing, _TwoWayLine
 
 
@@ -17,12 +18,7 @@ def _random_concave(
     """A min of random lines (concave, piecewise linear) and its breakpoints (all pairwise crossings:
     a superset of the real ones is fine, a subset would not be)."""
     lines = [(rng.uniform(-5, 5), rng.uniform(-3, 3)) for _ in range(rng.randint(1, 8))]
-    knots = sorted(
-        (b2 - b1) / (a1 - a2)
-        for i, (a1, b1) in enumerate(lines)
-        for a2, b2 in lines[i + 1 :]
-        if a1 != a2
-    )
+    knots = sorted((b2 - b1) / (a1 - a2) for i, (a1, b1) in enumerate(lines) for a2, b2 in lines[i + 1 :] if a1 != a2)
     return lines, knots
 
 
@@ -56,16 +52,12 @@ def test_level_crossing_is_the_edge_of_the_interval(seed: int) -> None:
             continue
         edge = _level_crossing(f, knots, inside, outside, level)
         assert f(edge) >= level  # still inside
-        assert f(edge) == pytest.approx(
-            level, abs=1e-9
-        )  # and at the edge, not short of it
+        assert f(edge) == pytest.approx(level, abs=1e-9)  # and at the edge, not short of it
         beyond = edge + (1e-6 if outside > inside else -1e-6)
         assert f(beyond) < level
 
 
-def _line_with_exchanges(
-    seed: int, remote_single_stamp: bool
-) -> tuple[_TwoWayLine, list[float]]:
+def _line_with_exchanges(seed: int, remote_single_stamp: bool) -> tuple[_TwoWayLine, list[float]]:
     rng = random.Random(seed)
     line = _TwoWayLine(
         resolution_us=1.0,
@@ -121,9 +113,5 @@ def test_bound_is_the_extreme_consistent_line(seed: int, single: bool) -> None:
         outside = max(x - fit.x_max, fit.x_min - x, 0.0)
         expected = spread + 2 * half_res_ns + 0.5e-6 * outside
         got = line.bound_ns(fit, remote_us)
-        assert got >= expected - 1e-6 * max(
-            1.0, expected
-        )  # never smaller than what the grid finds
-        assert got <= expected + 1e-3 * max(
-            1.0, expected
-        )  # and no wider than the grid's resolution explains
+        assert got >= expected - 1e-6 * max(1.0, expected)  # never smaller than what the grid finds
+        assert got <= expected + 1e-3 * max(1.0, expected)  # and no wider than the grid's resolution explains

@@ -27,6 +27,8 @@ from dataclasses import dataclass, field
 from icgt.protocol import Received
 from icgt.protocol.messages import FrameFlags, Message, Resend, ResendLost
 
+_RETRANSMIT = int(FrameFlags.RETRANSMIT)  # an int: IntFlag's & costs a microsecond per frame
+
 MAX_REQUEST = 0xFFFF  # RESEND.count is a u16
 MAX_IN_FLIGHT = 4  # the device queues 8 requests; keep well inside it
 REQUEST_TIMEOUT_NS = 2_000_000_000  # no RESEND_LOST by then (plus 1 ms per 10 frames asked): ask again
@@ -202,7 +204,7 @@ class ResendTracker:
         """One decoded frame; False if it is a retransmit of something already held (drop it)."""
         with self._lock:
             seq = received.seq
-            if received.flags & FrameFlags.RETRANSMIT:
+            if received.flags & _RETRANSMIT:
                 if self._last_wire is None:
                     self.counters.duplicates += 1
                     return False

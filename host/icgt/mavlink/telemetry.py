@@ -360,7 +360,8 @@ class TelemetryBuffer(Generic[S]):
                     return
             keys.append(key)
             items.append(sample)
-            self._trim_locked()
+            if len(keys) - self._head > self.capacity:  # the only way the head moves (see _trim_locked)
+                self._trim_locked()
 
     def _insert_late_locked(self, key: int, sample: S) -> None:
         i = bisect.bisect_left(self._keys, key, lo=self._head)

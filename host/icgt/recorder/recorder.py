@@ -17,7 +17,6 @@ import json
 import logging
 import math
 import os
-import sys
 import threading
 import time
 from collections import deque
@@ -62,6 +61,7 @@ from icgt.recorder import capture, topics, views
 from icgt.recorder.camera_link import CAMERA_IMAGES_SCHEMA, CameraImages, build_camera
 from icgt.recorder.config import RecorderConfig
 from icgt.recorder.resync import TakeOver, take_over
+from icgt.recorder.tuning import InterpreterTuning
 from icgt.recorder.views import FoxgloveViews
 from icgt.recording import McapRecorder, RecordingError, layout
 from icgt.recording.writer import McapLogHandler
@@ -108,7 +108,6 @@ _DRAIN_MAX = 5000  # inputs handled before the worker polls again (bounds frame 
 # The worker wakes this often [s]; the readers never wake it (no switch per message). Each wake-up polls the
 # synchroniser (~0.1 ms): every 10 ms that alone was 1 % of a core. Frames wait for later telemetry anyway.
 _WORK_PERIOD_S = 0.05
-_SWITCH_INTERVAL_S = 0.001  # the GIL's switch interval while recording [s] (see start())
 _MAVLINK_SERVICE_PERIOD_S = 0.05  # the MAVLink link's liveness / TIMESYNC / rate-request steps [s]
 _OTHER_SYSTEMS_BATCH = 500  # other systems' MAVLink frames per /mavlink/other_systems record, at most
 # The readers sleep this long between reads [s] when no stamp depends on it (DeviceLink batch_s: not while a
@@ -173,7 +172,7 @@ class Recorder:
         self._starting = threading.Event()  # set while start() runs: control start/stop wait for it to end
         self.failure: IcgtError | None = None
         self._sensors = config.sensors  # what the device was configured with (a sensor that does not answer: off)
-        self._switch_interval_before: float | None = None  # the GIL switch interval before start() [s]
+        self._tuning = InterpreterTuning()
 
     @property
     def last_status(self) -> Status | None:
@@ -216,11 +215,7 @@ class Recorder:
         except BaseException:
             self._abandon(path)
             raise
-        # The readers release the GIL for every read; a thread busy in Python (the worker, the log writer) that
-        # grabs it keeps it for the switch interval, so a reader could take one datagram per 5 ms (Python's
-        # default) and a flood backs up in the socket until the kernel drops it. 1 ms bounds that wait.
-        self._switch_interval_before = sys.getswitchinterval()
-        sys.setswitchinterval(min(self._switch_interval_before, _SWITCH_INTERVAL_S))
+        self._tuning.apply()  # GIL switch interval and garbage collector (see icgt.recorder.tuning)
         self._worker = threading.Thread(target=self._work, name="icgt-recorder", daemon=True)
         self._worker.start()
         self._starting.clear()
@@ -344,8 +339,7 @@ class Recorder:
             self._write_counters(time.monotonic_ns())
         self._record_link_summary()
         self._close_log()
-        if self._switch_interval_before is not None:
-            sys.setswitchinterval(self._switch_interval_before)
+        self._tuning.restore()
 
     def wait(self) -> None:
         """Block until stop() is called or a fatal error (full disk) ends the recording."""

@@ -22,6 +22,8 @@ import operator
 
 import numpy as np
 
+from icgt.ingest.matching import batch
+from icgt.ingest.matching.decide import decide
 from icgt.ingest.matching.results import (
     AMBIGUITY_MARGIN,
     IMAGE_EXTRA,
@@ -147,13 +149,15 @@ def _segment_key(
 
 
 def solve_cost(card: Card, fr: Frames, model: Model, widen: float, limit: float) -> float:
-    """The cost of `solve` (forward passes only), or infinity as soon as it is known to exceed `limit`."""
+    """The cost of `solve` (forward passes only), or infinity when it exceeds `limit`."""
     cands, ranges, segs, _extra = segments(card, fr, model, widen)
     cost = sum(fr.image_skip for r in ranges if r is None) + float(fr.skip_prefix[-1])
     for _imgs, lo, hi in segs:
         cost -= float(fr.skip_prefix[hi + 1] - fr.skip_prefix[lo])
+    stacked: list[tuple[batch.Prepared, tuple[object, ...] | None]] = []
+    exact = batch.exact_costs(fr)
     for imgs, lo, hi in segs:
-        if cost > limit:
+        if cost > limit:  # segment costs are never negative: the rest cannot bring it back
             return math.inf
         if len(imgs) == 1:
             one = _pair_sets(card, fr, cands, ranges, imgs, lo, hi)[0]
@@ -167,11 +171,21 @@ def solve_cost(card: Card, fr: Frames, model: Model, widen: float, limit: float)
             continue
         seg_cost = fr.cost_cache.get(key) if key is not None else None
         if seg_cost is None:
+            prepared = _stackable(card, fr, cands, ranges, imgs, lo, hi) if exact else None
+            if prepared is not None:  # costed below, with the other segments, all at once
+                stacked.append((prepared, key))
+                continue
             _imgs, pair, band_a, band_b, pf, sf = _prepare(card, fr, cands, ranges, imgs, lo, hi, None)
             f = _forward(pair, band_a, band_b, pf, sf, fr.image_skip)
             seg_cost = _f_at(f, band_a, band_b, pf, len(pair), hi - lo + 1)
             if key is not None:
                 fr.cost_cache[key] = seg_cost
+        cost += seg_cost
+    if cost > limit:
+        return math.inf
+    for (_p, key), seg_cost in zip(stacked, batch.costs(fr, [p for p, _k in stacked]), strict=True):
+        if key is not None:
+            fr.cost_cache[key] = seg_cost
         cost += seg_cost
     return cost if cost <= limit else math.inf
 
@@ -183,19 +197,38 @@ def solve(card: Card, fr: Frames, model: Model, widen: float) -> Outcome:
     out = Outcome(0.0, {}, {}, {}, set())
     for i in extra:
         out.extra[i] = IMAGE_EXTRA
-    in_seg_skip = 0.0
-    for imgs, lo, hi in segs:
-        in_seg_skip += float(fr.skip_prefix[hi + 1] - fr.skip_prefix[lo])
+    # The segments of several images, solved first: those the stacked DP takes all at once (`batch`),
+    # the others one by one; then all are merged in card order (dict order is the report's order).
+    parts: dict[int, Outcome] = {}
+    stacked: list[tuple[int, list[int], batch.Prepared, tuple[object, ...] | None]] = []
+    exact = batch.exact_costs(fr)
+    for s, (imgs, lo, hi) in enumerate(segs):
         if len(imgs) == 1:
-            out.cost += _solve_single(card, fr, cands, ranges, imgs[0], lo, hi, out)
             continue
         key = _segment_key(card, cands, ranges, imgs, lo, hi)
         part = fr.cache.get(key) if key is not None else None
         if part is None:
+            prepared = _stackable(card, fr, cands, ranges, imgs, lo, hi) if exact else None
+            if prepared is not None:
+                stacked.append((s, imgs, prepared, key))
+                continue
             part = Outcome(0.0, {}, {}, {}, set())
             solve_segment(card, fr, cands, ranges, imgs, lo, hi, part)
             if key is not None:
                 fr.cache[key] = part
+        parts[s] = part
+    solved = batch.outcomes(card, fr, [p for _s, _i, p, _k in stacked], [i for _s, i, _p, _k in stacked])
+    for (s, _imgs, _p, key), part in zip(stacked, solved, strict=True):
+        parts[s] = part
+        if key is not None:
+            fr.cache[key] = part
+    in_seg_skip = 0.0
+    for s, (imgs, lo, hi) in enumerate(segs):
+        in_seg_skip += float(fr.skip_prefix[hi + 1] - fr.skip_prefix[lo])
+        if len(imgs) == 1:
+            out.cost += _solve_single(card, fr, cands, ranges, imgs[0], lo, hi, out)
+            continue
+        part = parts[s]
         out.cost += part.cost
         out.pairs.update(part.pairs)
         out.ambiguous.update(part.ambiguous)
@@ -209,6 +242,26 @@ def solve(card: Card, fr: Frames, model: Model, widen: float) -> Outcome:
             out.cost += fr.image_skip
     out.cost += float(fr.skip_prefix[-1]) - in_seg_skip
     return out
+
+
+def _stackable(
+    card: Card,
+    fr: Frames,
+    cands: Cands,
+    ranges: list[tuple[int, int] | None],
+    imgs: list[int],
+    lo: int,
+    hi: int,
+) -> batch.Prepared | None:
+    """The segment for the stacked DP, or None where `_prepare` would leave images out (band too large)
+    or its band is too wide to stack."""
+    q = hi - lo + 1
+    pair = _pair_sets(card, fr, cands, ranges, imgs, lo, hi)
+    band_a, band_b = _bands(pair, q)
+    seg = batch.Prepared(lo, q, pair, band_a, band_b)
+    if sum(b - a + 1 for a, b in zip(band_a, band_b, strict=True)) > MAX_SEGMENT_CELLS:
+        return None
+    return seg if batch.width(seg) <= batch.MAX_WIDTH else None
 
 
 def _prepare(
@@ -335,14 +388,14 @@ def solve_segment(
             near_k = [k for k, v in enumerate(vals) if v <= limit]
             if len(near_k) == 1 and abs(vals[near_k[0]] - opt) < 1e-9:
                 # the usual case: one exposure fits within the margin, it is the optimum's, and leaving
-                # the image out costs too much (what `_decide` concludes, without its bookkeeping)
+                # the image out costs too much (what `decide` concludes, without its bookkeeping)
                 out.pairs[imgs[r]] = cols[near_k[0]] + lo
                 continue
         with_pair = {bb + lo: v for bb, v in zip(cols, vals, strict=True)}
         # The optimum's own pairing of image r. Where several alignments are optimal any of them will
         # do: the image is then ambiguous whichever is taken (the others are within the margin).
         mine = next((j for j, v in with_pair.items() if abs(v - opt) < 1e-9), None)
-        _decide(card, imgs[r], with_pair, with_skip, mine, limit, out)
+        decide(card, imgs[r], with_pair, with_skip, mine, limit, out)
 
 
 def _solve_single(
@@ -368,36 +421,8 @@ def _solve_single(
         if abs(with_pair[j] - opt) < 1e-9:
             mine = j
             break
-    _decide(card, i, with_pair, with_skip, mine, opt + AMBIGUITY_MARGIN, out)
+    decide(card, i, with_pair, with_skip, mine, opt + AMBIGUITY_MARGIN, out)
     return opt
-
-
-def _decide(
-    card: Card, i: int, with_pair: dict[int, float], with_skip: float, mine: int | None, limit: float, out: Outcome
-) -> None:
-    """Pair image i as the optimum does only if no alignment within the margin does otherwise."""
-    alts = [v for j, v in with_pair.items() if j != mine]
-    if mine is not None:
-        alts.append(with_skip)
-    alt = min(alts, default=math.inf)
-    near = sorted(j for j, v in with_pair.items() if v <= limit)
-    if alt > limit:
-        if mine is not None:
-            out.pairs[i] = mine
-        else:
-            out.extra[i] = IMAGE_EXTRA
-        return
-    if mine is None and not near:
-        out.extra[i] = IMAGE_EXTRA
-        return
-    if not card.has_time(i):
-        why = "no EXIF time and the order does not single out one exposure"
-    elif with_skip <= limit:
-        why = "its EXIF time fits these exposures and the counts do not say which image is the extra one"
-    else:
-        why = "its EXIF time fits several exposures and the order does not decide"
-    out.ambiguous[i] = (near, why)
-    out.frame_ambiguous.update(near)
 
 
 def _pair_sets(

@@ -67,82 +67,130 @@ def width(seg: Prepared) -> int:
 
 @dataclass
 class Solved:
-    """Per segment its optimum; per image row (stacked, row r of segment s at `base[s] + r`) what
+    """Per segment its optimum; per image row (stacked, see `_Stack`) what
     `align.solve_segment` decides on: leaving the image out, pairing it with each column."""
 
     opt: list[float]
-    base: list[int]
+    rows: list[_I]  # per segment the stacked row of each of its DP rows 0..p
     with_skip: _F  # [row] best alignment not pairing the image
     vals: _F  # [row, k] best alignment pairing it with column A_r + k (inf: not a pair column)
 
 
 class _Stack:
-    """The segments' rows stacked: row r of segment s is stacked row base[s] + r (rows 0..p_s)."""
+    """The segments' DP rows stacked level by level: row r of every segment with at least r rows is in
+    level r, segments longest first, so that a level's rows, and the rows of the segments that go on to
+    the next level, are contiguous slices (a DP step is then a few numpy operations on views).
+
+    Tables (f, g) have one row per stacked row, w + 1 columns, and one last row that stays infinite:
+    gathers that fall outside a band read it."""
 
     def __init__(self, fr: Frames, segs: list[Prepared]) -> None:
-        self.segs = segs
-        self.p = np.array([len(s.pair) for s in segs], dtype=np.int64)
-        self.base = np.concatenate([[0], np.cumsum(self.p + 1)[:-1]]).astype(np.int64)
-        n_rows = int((self.p + 1).sum())
-        self.a = np.fromiter((x for s in segs for x in s.band_a), dtype=np.int64, count=n_rows)
-        b = np.fromiter((x for s in segs for x in s.band_b), dtype=np.int64, count=n_rows)
-        self.w = int((b - self.a).max()) + 1
-        ks = np.arange(self.w, dtype=np.int64)
-        self.ks = ks
-        self.valid: _B = ks[None, :] <= (b - self.a)[:, None]
-        # skip prefix sums of each stacked cell's column, relative to its segment's first frame (cells past
-        # the segment's end get its last value: finite, so that inf - pf stays inf)
-        seg_of_row = np.repeat(np.arange(len(segs)), self.p + 1)
-        lo = np.array([s.lo for s in segs], dtype=np.int64)[seg_of_row]
-        q = np.array([s.q for s in segs], dtype=np.int64)[seg_of_row]
-        col = np.minimum(self.a[:, None] + ks[None, :], q[:, None])
+        n_seg = len(segs)
+        p = np.array([len(s.pair) for s in segs], dtype=np.int64)
+        self.p = p
+        order = np.argsort(-p, kind="stable")
+        rank = np.empty(n_seg, dtype=np.int64)
+        rank[order] = np.arange(n_seg)
+        p_max = int(p.max(initial=0))
+        # level r holds the segments with p >= r: the first n_level[r] in `order`
+        n_level = np.array([int(np.count_nonzero(p >= r)) for r in range(p_max + 1)], dtype=np.int64)
+        self.start = np.concatenate([[0], np.cumsum(n_level)]).astype(np.int64)
+        self.n_level = n_level
+        self.n_rows = int(self.start[-1])
+        # segment-major arrays first (row r of segment s at seg_base[s] + r), then placed by level
+        seg_base = np.concatenate([[0], np.cumsum(p + 1)[:-1]]).astype(np.int64)
+        seg_of = np.repeat(np.arange(n_seg), p + 1)
+        r_of = np.arange(self.n_rows) - seg_base[seg_of]
+        pos = self.start[r_of] + rank[seg_of]  # stacked position of each segment-major row
+        self.pos_of_seg = [pos[seg_base[s] : seg_base[s] + p[s] + 1] for s in range(n_seg)]
+        a_seg = np.fromiter((x for s in segs for x in s.band_a), dtype=np.int64, count=self.n_rows)
+        b_seg = np.fromiter((x for s in segs for x in s.band_b), dtype=np.int64, count=self.n_rows)
+        self.w = w = int((b_seg - a_seg).max()) + 1
+        ks = np.arange(w, dtype=np.int64)
+        a = np.empty(self.n_rows, dtype=np.int64)
+        a[pos] = a_seg
+        band_w = np.empty(self.n_rows, dtype=np.int64)
+        band_w[pos] = b_seg - a_seg
+        inf = np.inf
+        self.invalid: _F = np.where(ks[None, :] <= band_w[:, None], 0.0, inf)  # added: inf outside the band
+        lo_seg = np.array([s.lo for s in segs], dtype=np.int64)
+        q_seg = np.array([s.q for s in segs], dtype=np.int64)
+        lo, q = np.empty(self.n_rows, dtype=np.int64), np.empty(self.n_rows, dtype=np.int64)
+        lo[pos], q[pos] = lo_seg[seg_of], q_seg[seg_of]
+        # skip prefix sums of each cell's column relative to its segment's first frame (cells past the
+        # segment's end get its last value: finite, so inf - pf stays inf)
+        col = np.minimum(a[:, None] + ks[None, :], q[:, None])
         sp = fr.skip_prefix
         self.pf: _F = sp[lo[:, None] + col] - sp[lo][:, None]
-        self.q_local = q - self.a  # column q in each row's local index (used on the last rows)
-        # pair cells: image r with column bb, stacked at row base + r; in row r's own index (backward) and
-        # in row r + 1's index shifted by one (forward: pairing moves from column bb to bb + 1)
+        self.last = pos[seg_base + p]  # each segment's last row (p images placed)
+        self.last_k = (q - a)[self.last]  # column q there (inside the band: B_p = q)
+        # Gathers between a row (level r) and the same segment's next row (level r + 1, same rank: the
+        # next row of stacked row x < start[r] + n_level[r + 1] is x + n_level[r]), as flat indices
+        # into a table: d = A_{r+1} - A_r.
+        pad = self.n_rows * (w + 1)  # the infinite last row
+        nxt = np.full(self.n_rows, -1, dtype=np.int64)
+        for r in range(p_max):
+            x = np.arange(self.start[r], self.start[r] + n_level[r + 1])
+            nxt[x] = x + n_level[r]
+        has_next = nxt >= 0
+        d = np.zeros(self.n_rows, dtype=np.int64)
+        d[has_next] = a[nxt[has_next]] - a[has_next]
+
+        def flat(rows: _I, shift: _I) -> _I:
+            idx = ks[None, :] + shift[:, None]
+            ok = (idx >= 0) & (idx < w)
+            return np.where(ok, rows[:, None] * (w + 1) + idx, pad)
+
+        prev = np.full(self.n_rows, -1, dtype=np.int64)
+        prev[nxt[has_next]] = np.flatnonzero(has_next)
+        has_prev = prev >= 0
+        d_in = np.zeros(self.n_rows, dtype=np.int64)
+        d_in[has_prev] = d[prev[has_prev]]
+        prev_rows = np.where(has_prev, prev, self.n_rows)
+        # forward, indexed by the new row: the previous row at the new row's column + 0 and - 1
+        self.f_same = flat(prev_rows, d_in)
+        self.f_diag = flat(prev_rows, d_in - 1)
+        # backward, indexed by the row: the next row at the row's column + 0 and + 1
+        next_rows = np.where(has_next, nxt, self.n_rows)
+        self.g_same = flat(next_rows, -d)
+        self.g_diag = flat(next_rows, 1 - d)
+        # pair cells: image r with local column bb, in row r's own index (backward, decisions) and in the
+        # next row's index shifted by one (forward: pairing moves from column bb to bb + 1)
         counts = [len(c) for s in segs for c in s.pair]
-        rows = np.repeat(
-            np.concatenate([self.base[i] + np.arange(len(s.pair)) for i, s in enumerate(segs)]).astype(np.int64),
+        rows_seg = np.repeat(
+            np.concatenate([seg_base[i] + np.arange(len(s.pair)) for i, s in enumerate(segs)]).astype(np.int64),
             counts,
         )
+        rows = pos[rows_seg]
         cols = np.fromiter((c for s in segs for cs in s.pair for c in cs), dtype=np.int64, count=sum(counts))
-        self.pm_back: _B = np.zeros((n_rows, self.w + 1), dtype=bool)
-        self.pm_back[rows, cols - self.a[rows]] = True
-        self.pm_fwd: _B = np.zeros((n_rows, self.w + 1), dtype=bool)
-        self.pm_fwd[rows, cols + 1 - self.a[rows + 1]] = True
-        # segments longest first: those still active at step t are a prefix
-        self.order = np.argsort(-self.p, kind="stable")
-        self.p_sorted = self.p[self.order]
-        self.n_rows = n_rows
+        self.pm_back: _F = np.full((self.n_rows, w), inf)
+        self.pm_back[rows, cols - a[rows]] = 0.0
+        self.pm_fwd: _F = np.full((self.n_rows, w), inf)
+        self.pm_fwd[nxt[rows], cols + 1 - a[nxt[rows]]] = 0.0
 
-    def active(self, t: int) -> _I:
-        n = int(np.searchsorted(-self.p_sorted, -t, side="left"))  # segments with p > t
-        return self.order[:n]
+    def level(self, r: int, n: int | None = None) -> slice:
+        """Level r's rows (its first n: the segments that go on to level r + 1)."""
+        s0 = int(self.start[r])
+        return slice(s0, s0 + int(self.n_level[r] if n is None else n))
 
-    def shifted(self, rows_vals: _F, offset: _I) -> _F:
-        """rows_vals[i, k + offset[i]] for k in 0..w-1, inf where that index is outside 0..w-1."""
-        idx = self.ks[None, :] + offset[:, None]
-        idx = np.where((idx < 0) | (idx >= self.w), self.w, idx)
-        return np.take_along_axis(rows_vals, idx, axis=1)
+    def table(self) -> _F:
+        return np.full((self.n_rows + 1, self.w + 1), np.inf)
 
 
 def _forward(st: _Stack, si: float) -> _F:
-    """f on the stack (width w + 1, the last column always inf)."""
-    inf = np.inf
-    f: _F = np.full((st.n_rows, st.w + 1), inf)
-    b0 = st.base
-    f[b0, : st.w] = np.where(st.valid[b0], st.pf[b0], inf)
-    for t in range(int(st.p.max(initial=0))):
-        g = st.base[st.active(t)] + t
-        gn = g + 1
-        d = st.a[gn] - st.a[g]
-        prev = f[g]
-        new = np.minimum(st.shifted(prev, d) + si, np.where(st.pm_fwd[g, : st.w], st.shifted(prev, d - 1), inf))
-        v, pf = st.valid[gn], st.pf[gn]
-        new = np.where(v, new, inf)
-        new = pf + np.minimum.accumulate(new - pf, axis=1)
-        f[gn, : st.w] = np.where(v, new, inf)
+    """f on the stack: f[x, k] the best cost of the row's images placed with its segment's columns up to
+    A_r + k (what `align._forward` computes, see the module docstring)."""
+    f = st.table()
+    ff = f.reshape(-1)
+    w = st.w
+    top = st.level(0)
+    f[top, :w] = st.pf[top] + st.invalid[top]
+    for r in range(len(st.n_level) - 1):
+        new_rows = st.level(r + 1)
+        same, diag = ff[st.f_same[new_rows]], ff[st.f_diag[new_rows]]
+        new = np.minimum(same + si, diag + st.pm_fwd[new_rows]) + st.invalid[new_rows]
+        pf = st.pf[new_rows]
+        f[new_rows, :w] = np.minimum.accumulate(new - pf, axis=1) + pf + st.invalid[new_rows]
     return f
 
 
@@ -152,41 +200,35 @@ def costs(fr: Frames, segs: list[Prepared]) -> list[float]:
         return []
     st = _Stack(fr, segs)
     f = _forward(st, fr.image_skip)
-    last = st.base + st.p
-    return [float(v) for v in f[last, st.q_local[last]]]
+    return [float(v) for v in f[st.last, st.last_k]]
 
 
 def solve(fr: Frames, segs: list[Prepared]) -> Solved:
     """Forward and backward passes over all segments, and per image row the costs its decision needs."""
     st = _Stack(fr, segs)
     si = fr.image_skip
-    inf = np.inf
+    w = st.w
     f = _forward(st, si)
-    g_tab: _F = np.full((st.n_rows, st.w + 1), inf)
-    last = st.base + st.p
-    total = st.pf[last, np.minimum(st.q_local[last], st.w - 1)]
-    # row p: total - pf over the band (the band of the last row ends at q: inside the stack's width)
-    g_tab[last, : st.w] = np.where(st.valid[last], total[:, None] - st.pf[last], inf)
-    with_skip: _F = np.full(st.n_rows, inf)
-    vals: _F = np.full((st.n_rows, st.w), inf)
-    for t in range(int(st.p.max(initial=0)) - 1, -1, -1):
-        g = st.base[st.active(t)] + t
-        gn = g + 1
-        d = st.a[gn] - st.a[g]
-        nxt = g_tab[gn]
-        # for row r's column A_r + k the next row's index is k - d
-        new = np.minimum(st.shifted(nxt, -d) + si, np.where(st.pm_back[g, : st.w], st.shifted(nxt, 1 - d), inf))
-        v, pf = st.valid[g], st.pf[g]
-        new = np.where(v, new, inf)
-        new = np.minimum.accumulate((new + pf)[:, ::-1], axis=1)[:, ::-1] - pf
-        g_tab[g, : st.w] = np.where(v, new, inf)
-        # the image of row r left out: f[r] + g[r + 1] over the columns both rows hold; paired with
-        # column A_r + k: f[r][k] + g[r + 1] at that column + 1
-        fr_row = f[g]
-        with_skip[g] = (st.shifted(fr_row, d) + nxt[:, : st.w]).min(axis=1) + si
-        vals[g] = np.where(st.pm_back[g, : st.w], fr_row[:, : st.w] + st.shifted(nxt, 1 - d), inf)
-    opt = [float(x) for x in f[last, st.q_local[last]]]
-    return Solved(opt, st.base.tolist(), with_skip, vals)
+    ff = f.reshape(-1)
+    g = st.table()
+    gf = g.reshape(-1)
+    total = st.pf[st.last, st.last_k]
+    g[st.last, :w] = total[:, None] - st.pf[st.last] + st.invalid[st.last]
+    with_skip: _F = np.full(st.n_rows, np.inf)
+    vals: _F = np.full((st.n_rows, w), np.inf)
+    for r in range(len(st.n_level) - 2, -1, -1):
+        rows = st.level(r, int(st.n_level[r + 1]))
+        same, diag = gf[st.g_same[rows]], gf[st.g_diag[rows]]
+        new = np.minimum(same + si, diag + st.pm_back[rows]) + st.invalid[rows]
+        pf = st.pf[rows]
+        g[rows, :w] = np.minimum.accumulate((new + pf)[:, ::-1], axis=1)[:, ::-1] - pf + st.invalid[rows]
+        # the row's image left out: f[r] + g[r + 1] at every column both hold (f read in the next row's
+        # index, as the forward pass does); paired with column A_r + k: f[r][k] + g[r + 1] one column on
+        nxt_rows = st.level(r + 1)
+        with_skip[rows] = (ff[st.f_same[nxt_rows]] + g[nxt_rows, :w]).min(axis=1) + si
+        vals[rows] = f[rows, :w] + diag + st.pm_back[rows]
+    opt = [float(x) for x in f[st.last, st.last_k]]
+    return Solved(opt, st.pos_of_seg, with_skip, vals)
 
 
 def outcomes(card: Card, fr: Frames, segs: list[Prepared], imgs: list[list[int]]) -> list[Outcome]:
@@ -194,8 +236,9 @@ def outcomes(card: Card, fr: Frames, segs: list[Prepared], imgs: list[list[int]]
     if not segs:
         return []
     solved = solve(fr, segs)
-    seg_of_row = np.repeat(np.arange(len(segs)), [len(s.pair) + 1 for s in segs])
-    opt_row = np.array(solved.opt)[seg_of_row]
+    opt_row = np.zeros(len(solved.with_skip))
+    for s, rows in enumerate(solved.rows):
+        opt_row[rows] = solved.opt[s]
     limit_row = opt_row + AMBIGUITY_MARGIN
     near = solved.vals <= limit_row[:, None]
     first = np.argmax(near, axis=1)
@@ -211,8 +254,9 @@ def outcomes(card: Card, fr: Frames, segs: list[Prepared], imgs: list[list[int]]
     for s, seg in enumerate(segs):
         part = Outcome(solved.opt[s], {}, {}, {}, set())
         opt, limit, lo = solved.opt[s], solved.opt[s] + AMBIGUITY_MARGIN, seg.lo
+        rows_s = solved.rows[s].tolist()
         for r, i in enumerate(imgs[s]):
-            g = solved.base[s] + r
+            g = int(rows_s[r])
             ar = seg.band_a[r]
             if fast[g]:
                 part.pairs[i] = ar + first_l[g] + lo

@@ -19,6 +19,7 @@ from __future__ import annotations
 import bisect
 import math
 import operator
+from typing import Any
 
 import numpy as np
 
@@ -34,6 +35,8 @@ from icgt.ingest.matching.state import Card, Frames, Model, Outcome
 
 MAX_SEGMENT_CELLS = 4_000_000
 """Band cells of one segment beyond which runs of images without EXIF time are left out of it."""
+STACK_MIN_ABREAST = 4
+"""The stacked DP is used when the segments' rows add up to at least this many times the longest's."""
 _CACHE_MAX_IMAGES = 64  # segments up to this many images are remembered (offset scans repeat most of them)
 
 
@@ -41,7 +44,11 @@ Cands = list[tuple[int, ...]]
 """Per image, the frames its window admits (ascending)."""
 
 
-def windows(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, list[tuple[int, int] | None]]:
+Flat = tuple[np.ndarray[Any, np.dtype[np.int64]], np.ndarray[Any, np.dtype[np.int64]]]
+"""The windows' frames as arrays: image i's are flat[0][flat[1][i] : flat[1][i + 1]] (none if untimed)."""
+
+
+def windows(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, list[tuple[int, int] | None], Flat]:
     """Per image: the frames its padded EXIF window admits (timed images), and the frame range it may use."""
     n, m = len(card), len(fr.recs)
     p = np.asarray(model.predict(fr.x), dtype=np.float64)
@@ -50,6 +57,8 @@ def windows(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, 
     cands: list[tuple[int, ...]] = [()] * n
     ranges: list[tuple[int, int] | None] = [None] * n
     ti = card.timed
+    per_image = np.zeros(n, dtype=np.int64)
+    jj = np.zeros(0, dtype=np.int64)
     if len(ti) and m:
         lo_t, hi_t = card.c[ti], card.c[ti] + card.r[ti]
         a = np.searchsorted(p, lo_t - tmax, side="left")
@@ -66,6 +75,7 @@ def windows(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, 
         ends = np.cumsum(counts)
         begins = ends - counts
         nz = np.flatnonzero(counts)
+        per_image[ti] = counts
         flat = jj.tolist()
         for i, s0, s1 in zip(ti[nz].tolist(), begins[nz].tolist(), ends[nz].tolist(), strict=True):
             cand = tuple(flat[s0:s1])
@@ -83,7 +93,7 @@ def windows(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, 
             hi = after[1] if after is not None else m - 1
             has = m > 0 and lo <= hi and int(fr.eligible_prefix[hi + 1] - fr.eligible_prefix[lo]) > 0
             ranges[i] = (lo, hi) if has else None
-    return cands, ranges
+    return cands, ranges, (jj.astype(np.int64), np.concatenate([[0], np.cumsum(per_image)]).astype(np.int64))
 
 
 Segments = list[tuple[list[int], int, int]]
@@ -91,7 +101,7 @@ Segments = list[tuple[list[int], int, int]]
 
 def segments(
     card: Card, fr: Frames, model: Model, widen: float
-) -> tuple[Cands, list[tuple[int, int] | None], Segments, list[int]]:
+) -> tuple[Cands, list[tuple[int, int] | None], Segments, list[int], Flat]:
     """Windows, ranges made monotone, the independent segments (images, first, last frame), extra images.
 
     Ranges made monotone (a camera numbers in time order): an image may not start before the latest
@@ -101,7 +111,7 @@ def segments(
     read what is returned."""
     key = (model.offset, model.drift, widen)
     if fr.last_segments is not None and fr.last_segments[0] == key:
-        known: tuple[Cands, list[tuple[int, int] | None], Segments, list[int]] = fr.last_segments[1]
+        known: tuple[Cands, list[tuple[int, int] | None], Segments, list[int], Flat] = fr.last_segments[1]
         return known
     found = _segments(card, fr, model, widen)
     fr.last_segments = (key, found)
@@ -110,8 +120,8 @@ def segments(
 
 def _segments(
     card: Card, fr: Frames, model: Model, widen: float
-) -> tuple[Cands, list[tuple[int, int] | None], Segments, list[int]]:
-    cands, ranges = windows(card, fr, model, widen)
+) -> tuple[Cands, list[tuple[int, int] | None], Segments, list[int], Flat]:
+    cands, ranges, flat = windows(card, fr, model, widen)
     n = len(card)
     present = [r for r in ranges if r is not None]
     segs: Segments = []
@@ -135,7 +145,7 @@ def _segments(
             ranges[i] = (a, b)
         for s0, s1 in zip(starts.tolist(), ends.tolist(), strict=True):
             segs.append((ki_l[s0:s1], klo_l[s0], reach_l[s1 - 1]))
-    return cands, ranges, segs, extra
+    return cands, ranges, segs, extra, flat
 
 
 def _segment_key(
@@ -150,12 +160,12 @@ def _segment_key(
 
 def solve_cost(card: Card, fr: Frames, model: Model, widen: float, limit: float) -> float:
     """The cost of `solve` (forward passes only), or infinity when it exceeds `limit`."""
-    cands, ranges, segs, _extra = segments(card, fr, model, widen)
+    cands, ranges, segs, _extra, flat = segments(card, fr, model, widen)
     cost = sum(fr.image_skip for r in ranges if r is None) + float(fr.skip_prefix[-1])
     for _imgs, lo, hi in segs:
         cost -= float(fr.skip_prefix[hi + 1] - fr.skip_prefix[lo])
-    stacked: list[tuple[batch.Prepared, tuple[object, ...] | None]] = []
-    exact = batch.exact_costs(fr)
+    todo: Segments = []
+    keys: list[tuple[object, ...] | None] = []
     for imgs, lo, hi in segs:
         if cost > limit:  # segment costs are never negative: the rest cannot bring it back
             return math.inf
@@ -170,58 +180,88 @@ def solve_cost(card: Card, fr: Frames, model: Model, widen: float, limit: float)
             cost += known.cost
             continue
         seg_cost = fr.cost_cache.get(key) if key is not None else None
-        if seg_cost is None:
-            prepared = _stackable(card, fr, cands, ranges, imgs, lo, hi) if exact else None
-            if prepared is not None:  # costed below, with the other segments, all at once
-                stacked.append((prepared, key))
-                continue
-            _imgs, pair, band_a, band_b, pf, sf = _prepare(card, fr, cands, ranges, imgs, lo, hi, None)
-            f = _forward(pair, band_a, band_b, pf, sf, fr.image_skip)
-            seg_cost = _f_at(f, band_a, band_b, pf, len(pair), hi - lo + 1)
-            if key is not None:
-                fr.cost_cache[key] = seg_cost
+        if seg_cost is None:  # costed below, all at once
+            todo.append((imgs, lo, hi))
+            keys.append(key)
+            continue
         cost += seg_cost
     if cost > limit:
         return math.inf
-    for (_p, key), seg_cost in zip(stacked, batch.costs(fr, [p for p, _k in stacked]), strict=True):
+    for key, seg_cost in zip(keys, _costs(card, fr, cands, ranges, flat, todo), strict=True):
         if key is not None:
             fr.cost_cache[key] = seg_cost
         cost += seg_cost
     return cost if cost <= limit else math.inf
 
 
+def _costs(
+    card: Card, fr: Frames, cands: Cands, ranges: list[tuple[int, int] | None], flat: Flat, segs: Segments
+) -> list[float]:
+    """The optimal cost of each segment: stacked (`batch`) where `_split` says so, else row by row."""
+    stacked, alone = _split(card, fr, ranges, flat, segs)
+    out = [0.0] * len(segs)
+    if stacked:
+        m = batch.many(fr, card.has, flat, ranges, [segs[s] for s in stacked])
+        for s, c in zip(stacked, batch.costs(fr, m), strict=True):
+            out[s] = c
+    for s in alone:
+        imgs, lo, hi = segs[s]
+        _imgs, pair, band_a, band_b, pf, sf = _prepare(card, fr, cands, ranges, imgs, lo, hi, None)
+        f = _forward(pair, band_a, band_b, pf, sf, fr.image_skip)
+        out[s] = _f_at(f, band_a, band_b, pf, len(pair), hi - lo + 1)
+    return out
+
+
+def _split(
+    card: Card, fr: Frames, ranges: list[tuple[int, int] | None], flat: Flat, segs: Segments
+) -> tuple[list[int], list[int]]:
+    """(segments for the stacked DP, segments for the row-by-row one). Stacked only with whole-number
+    costs (`batch.exact_costs`), where there are enough rows abreast to be worth a numpy step per row
+    (a card of one long pass is faster row by row), and where `batch.fits`."""
+    if not segs or not batch.exact_costs(fr):
+        return [], list(range(len(segs)))
+    rows = [len(s[0]) for s in segs]
+    if sum(rows) < STACK_MIN_ABREAST * max(rows):
+        return [], list(range(len(segs)))
+    return batch.fits(batch.many(fr, card.has, flat, ranges, segs))
+
+
 def solve(card: Card, fr: Frames, model: Model, widen: float) -> Outcome:
     """The alignment under `model` with every window widened by `widen` [s]."""
-    cands, ranges, segs, extra = segments(card, fr, model, widen)
+    cands, ranges, segs, extra, flat = segments(card, fr, model, widen)
     n = len(card)
     out = Outcome(0.0, {}, {}, {}, set())
     for i in extra:
         out.extra[i] = IMAGE_EXTRA
-    # The segments of several images, solved first: those the stacked DP takes all at once (`batch`),
-    # the others one by one; then all are merged in card order (dict order is the report's order).
+    # The segments of several images solved first (stacked where `_split` says so, else one by one),
+    # then merged in card order (dict order is the report's order).
     parts: dict[int, Outcome] = {}
-    stacked: list[tuple[int, list[int], batch.Prepared, tuple[object, ...] | None]] = []
-    exact = batch.exact_costs(fr)
+    todo: list[int] = []
+    keys: dict[int, tuple[object, ...] | None] = {}
     for s, (imgs, lo, hi) in enumerate(segs):
         if len(imgs) == 1:
             continue
         key = _segment_key(card, cands, ranges, imgs, lo, hi)
         part = fr.cache.get(key) if key is not None else None
         if part is None:
-            prepared = _stackable(card, fr, cands, ranges, imgs, lo, hi) if exact else None
-            if prepared is not None:
-                stacked.append((s, imgs, prepared, key))
-                continue
-            part = Outcome(0.0, {}, {}, {}, set())
-            solve_segment(card, fr, cands, ranges, imgs, lo, hi, part)
-            if key is not None:
-                fr.cache[key] = part
-        parts[s] = part
-    solved = batch.outcomes(card, fr, [p for _s, _i, p, _k in stacked], [i for _s, i, _p, _k in stacked])
-    for (s, _imgs, _p, key), part in zip(stacked, solved, strict=True):
-        parts[s] = part
+            todo.append(s)
+            keys[s] = key
+        else:
+            parts[s] = part
+    stacked, alone = _split(card, fr, ranges, flat, [segs[s] for s in todo])
+    if stacked:
+        m = batch.many(fr, card.has, flat, ranges, [segs[todo[k]] for k in stacked])
+        for k, part in zip(stacked, batch.outcomes(card, fr, m), strict=True):
+            parts[todo[k]] = part
+    for k in alone:
+        imgs, lo, hi = segs[todo[k]]
+        part = Outcome(0.0, {}, {}, {}, set())
+        solve_segment(card, fr, cands, ranges, imgs, lo, hi, part)
+        parts[todo[k]] = part
+    for s in todo:
+        key = keys[s]
         if key is not None:
-            fr.cache[key] = part
+            fr.cache[key] = parts[s]
     in_seg_skip = 0.0
     for s, (imgs, lo, hi) in enumerate(segs):
         in_seg_skip += float(fr.skip_prefix[hi + 1] - fr.skip_prefix[lo])
@@ -242,26 +282,6 @@ def solve(card: Card, fr: Frames, model: Model, widen: float) -> Outcome:
             out.cost += fr.image_skip
     out.cost += float(fr.skip_prefix[-1]) - in_seg_skip
     return out
-
-
-def _stackable(
-    card: Card,
-    fr: Frames,
-    cands: Cands,
-    ranges: list[tuple[int, int] | None],
-    imgs: list[int],
-    lo: int,
-    hi: int,
-) -> batch.Prepared | None:
-    """The segment for the stacked DP, or None where `_prepare` would leave images out (band too large)
-    or its band is too wide to stack."""
-    q = hi - lo + 1
-    pair = _pair_sets(card, fr, cands, ranges, imgs, lo, hi)
-    band_a, band_b = _bands(pair, q)
-    seg = batch.Prepared(lo, q, pair, band_a, band_b)
-    if sum(b - a + 1 for a, b in zip(band_a, band_b, strict=True)) > MAX_SEGMENT_CELLS:
-        return None
-    return seg if batch.width(seg) <= batch.MAX_WIDTH else None
 
 
 def _prepare(

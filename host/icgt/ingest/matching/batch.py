@@ -35,6 +35,8 @@ from icgt.ingest.matching.decide import decide
 from icgt.ingest.matching.results import AMBIGUITY_MARGIN
 from icgt.ingest.matching.state import Card, Frames, Outcome
 
+Seg = tuple[list[int], int, int]
+
 MAX_WIDTH = 64
 """Segments with a band wider than this many columns stay with the row-by-row DP (the stacked tables
 are as wide as the widest band: a long run of images without EXIF time would make them all wide)."""
@@ -51,24 +53,106 @@ def exact_costs(fr: Frames) -> bool:
 
 
 @dataclass
-class Prepared:
-    """One segment as `align._prepare` gives it: pair columns per image (local, ascending), bands."""
+class Many:
+    """Segments for the stacked DP, as arrays. Segment s has p[s] images, frames lo[s] .. lo[s] + q[s] - 1
+    (local columns 0..q[s]-1) and DP rows 0..p[s], row r of segment s at `base[s] + r` (segment-major)."""
 
-    lo: int  # first frame (local column 0)
-    q: int  # number of frames
-    pair: list[list[int]]
-    band_a: list[int]
-    band_b: list[int]
+    lo: _I
+    q: _I
+    p: _I
+    base: _I
+    imgs: list[list[int]]  # per segment its images (card order)
+    band_a: _I  # [segment-major row] A_r (`align._bands`)
+    band_b: _I  # B_r
+    cell_row: _I  # pair cells: segment-major row (image r of its segment) ...
+    cell_col: _I  # ... and local column, ascending within a row
+    cell_start: _I  # [segment-major row] its first cell (rows in order; p rows of a segment then its last)
 
 
-def width(seg: Prepared) -> int:
-    return max(b - a + 1 for a, b in zip(seg.band_a, seg.band_b, strict=True))
+def many(
+    fr: Frames, has: list[bool], flat: tuple[_I, _I], ranges: list[tuple[int, int] | None], segs: list[Seg]
+) -> Many:
+    """The pair columns and bands of `segs` (each (images, first frame, last frame)), all at once: what
+    `align._pair_sets` and `align._bands` give per segment, vectorised over the card."""
+    cflat, cstart = flat
+    n_seg = len(segs)
+    p = np.array([len(s[0]) for s in segs], dtype=np.int64)
+    lo = np.array([s[1] for s in segs], dtype=np.int64)
+    q = np.array([s[2] - s[1] + 1 for s in segs], dtype=np.int64)
+    base = np.concatenate([[0], np.cumsum(p + 1)[:-1]]).astype(np.int64)
+    n_rows = int((p + 1).sum())
+    imgs = [s[0] for s in segs]
+    img = np.fromiter((i for s in segs for i in s[0]), dtype=np.int64, count=int(p.sum()))
+    seg_of_img = np.repeat(np.arange(n_seg), p)
+    row_of_img = base[seg_of_img] + np.arange(len(img)) - (np.cumsum(p) - p)[seg_of_img]
+    # timed images: their window's frames inside the segment (`align._pair_sets`)
+    cnt = cstart[img + 1] - cstart[img]
+    rep = np.repeat(np.arange(len(img)), cnt)
+    within = np.arange(int(cnt.sum()), dtype=np.int64) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    j = cflat[np.repeat(cstart[img], cnt) + within]
+    seg_lo, seg_hi = lo[seg_of_img][rep], (lo + q - 1)[seg_of_img][rep]
+    ok = (j >= seg_lo) & (j <= seg_hi)
+    cell_img, cell_frame = rep[ok], j[ok]
+    # images without a time: every eligible frame of their range inside the segment (few)
+    untimed = [k for k, i in enumerate(img.tolist()) if not has[i]]
+    if untimed:
+        extra_img, extra_frame = [cell_img], [cell_frame]
+        for k in untimed:
+            s = int(seg_of_img[k])
+            r = ranges[int(img[k])]
+            s_lo, s_hi = int(lo[s]), int(lo[s] + q[s] - 1)
+            r0, r1 = (max(s_lo, r[0]), min(s_hi, r[1])) if r is not None else (s_lo, s_hi)
+            fj = np.flatnonzero(fr.eligible[r0 : r1 + 1]).astype(np.int64) + r0
+            extra_img.append(np.full(len(fj), k, dtype=np.int64))
+            extra_frame.append(fj)
+        cell_img, cell_frame = np.concatenate(extra_img), np.concatenate(extra_frame)
+        order = np.lexsort((cell_frame, cell_img))
+        cell_img, cell_frame = cell_img[order], cell_frame[order]
+    cell_row = row_of_img[cell_img]
+    cell_col = cell_frame - lo[seg_of_img][cell_img]
+    per_row = np.bincount(cell_row, minlength=n_rows)
+    cell_start = np.concatenate([[0], np.cumsum(per_row)]).astype(np.int64)
+    # bands (`align._bands`): least[r] the least column of image r (q if none), suffix minima within each
+    # segment (suffix[p] = q); reach[r] one past the greatest column of images ..r (running maximum).
+    # Segments are kept apart by adding s * big: a suffix minimum never reaches into an earlier segment
+    # (later ones are larger), a running maximum never into a later one.
+    seg_of_row = np.repeat(np.arange(n_seg), p + 1)
+    q_row = q[seg_of_row]
+    has_cells = per_row > 0
+    least = q_row.copy()
+    least[has_cells] = cell_col[cell_start[:-1][has_cells]]
+    most1 = np.zeros(n_rows, dtype=np.int64)
+    most1[has_cells] = cell_col[cell_start[1:][has_cells] - 1] + 1
+    big = int(q.max(initial=0)) + 2
+    off = seg_of_row * big
+    suffix = np.minimum.accumulate((least + off)[::-1])[::-1] - off
+    reach = np.maximum.accumulate(most1 + off) - off
+    first_row = np.zeros(n_rows, dtype=bool)
+    first_row[base] = True
+    band_a = np.where(first_row, suffix, np.concatenate([[0], suffix[:-1]]))
+    last_row = base + p
+    nxt_a = np.concatenate([band_a[1:], [0]])
+    band_b = np.minimum(q_row, np.maximum(np.maximum(reach, nxt_a), band_a))
+    band_b[last_row] = q
+    return Many(lo, q, p, base, imgs, band_a, band_b, cell_row, cell_col, cell_start)
+
+
+def fits(m: Many) -> tuple[list[int], list[int]]:
+    """(segments the stack takes, segments left to the row-by-row DP): those whose band cells exceed
+    `align.MAX_SEGMENT_CELLS` (it then leaves images out) or whose band is wider than MAX_WIDTH."""
+    from icgt.ingest.matching.align import MAX_SEGMENT_CELLS
+
+    widths = m.band_b - m.band_a + 1
+    cells = np.add.reduceat(widths, m.base)
+    wide = np.maximum.reduceat(widths, m.base)
+    ok = (cells <= MAX_SEGMENT_CELLS) & (wide <= MAX_WIDTH)
+    return np.flatnonzero(ok).tolist(), np.flatnonzero(~ok).tolist()
 
 
 @dataclass
 class Solved:
-    """Per segment its optimum; per image row (stacked, see `_Stack`) what
-    `align.solve_segment` decides on: leaving the image out, pairing it with each column."""
+    """Per segment its optimum; per image row (stacked, see `_Stack`) what `align.solve_segment`
+    decides on: leaving the image out, pairing it with each column."""
 
     opt: list[float]
     rows: list[_I]  # per segment the stacked row of each of its DP rows 0..p
@@ -84,9 +168,9 @@ class _Stack:
     Tables (f, g) have one row per stacked row, w + 1 columns, and one last row that stays infinite:
     gathers that fall outside a band read it."""
 
-    def __init__(self, fr: Frames, segs: list[Prepared]) -> None:
-        n_seg = len(segs)
-        p = np.array([len(s.pair) for s in segs], dtype=np.int64)
+    def __init__(self, fr: Frames, m: Many) -> None:
+        n_seg = len(m.p)
+        p = m.p
         self.p = p
         order = np.argsort(-p, kind="stable")
         rank = np.empty(n_seg, dtype=np.int64)
@@ -98,13 +182,12 @@ class _Stack:
         self.n_level = n_level
         self.n_rows = int(self.start[-1])
         # segment-major arrays first (row r of segment s at seg_base[s] + r), then placed by level
-        seg_base = np.concatenate([[0], np.cumsum(p + 1)[:-1]]).astype(np.int64)
+        seg_base = m.base
         seg_of = np.repeat(np.arange(n_seg), p + 1)
         r_of = np.arange(self.n_rows) - seg_base[seg_of]
         pos = self.start[r_of] + rank[seg_of]  # stacked position of each segment-major row
         self.pos_of_seg = [pos[seg_base[s] : seg_base[s] + p[s] + 1] for s in range(n_seg)]
-        a_seg = np.fromiter((x for s in segs for x in s.band_a), dtype=np.int64, count=self.n_rows)
-        b_seg = np.fromiter((x for s in segs for x in s.band_b), dtype=np.int64, count=self.n_rows)
+        a_seg, b_seg = m.band_a, m.band_b
         self.w = w = int((b_seg - a_seg).max()) + 1
         ks = np.arange(w, dtype=np.int64)
         a = np.empty(self.n_rows, dtype=np.int64)
@@ -113,8 +196,7 @@ class _Stack:
         band_w[pos] = b_seg - a_seg
         inf = np.inf
         self.invalid: _F = np.where(ks[None, :] <= band_w[:, None], 0.0, inf)  # added: inf outside the band
-        lo_seg = np.array([s.lo for s in segs], dtype=np.int64)
-        q_seg = np.array([s.q for s in segs], dtype=np.int64)
+        lo_seg, q_seg = m.lo, m.q
         lo, q = np.empty(self.n_rows, dtype=np.int64), np.empty(self.n_rows, dtype=np.int64)
         lo[pos], q[pos] = lo_seg[seg_of], q_seg[seg_of]
         # skip prefix sums of each cell's column relative to its segment's first frame (cells past the
@@ -156,13 +238,8 @@ class _Stack:
         self.g_diag = flat(next_rows, 1 - d)
         # pair cells: image r with local column bb, in row r's own index (backward, decisions) and in the
         # next row's index shifted by one (forward: pairing moves from column bb to bb + 1)
-        counts = [len(c) for s in segs for c in s.pair]
-        rows_seg = np.repeat(
-            np.concatenate([seg_base[i] + np.arange(len(s.pair)) for i, s in enumerate(segs)]).astype(np.int64),
-            counts,
-        )
-        rows = pos[rows_seg]
-        cols = np.fromiter((c for s in segs for cs in s.pair for c in cs), dtype=np.int64, count=sum(counts))
+        rows = pos[m.cell_row]
+        cols = m.cell_col
         self.pm_back: _F = np.full((self.n_rows, w), inf)
         self.pm_back[rows, cols - a[rows]] = 0.0
         self.pm_fwd: _F = np.full((self.n_rows, w), inf)
@@ -194,18 +271,18 @@ def _forward(st: _Stack, si: float) -> _F:
     return f
 
 
-def costs(fr: Frames, segs: list[Prepared]) -> list[float]:
+def costs(fr: Frames, m: Many) -> list[float]:
     """Each segment's optimal cost (what `align._forward` then `align._f_at` give)."""
-    if not segs:
+    if len(m.p) == 0:
         return []
-    st = _Stack(fr, segs)
+    st = _Stack(fr, m)
     f = _forward(st, fr.image_skip)
     return [float(v) for v in f[st.last, st.last_k]]
 
 
-def solve(fr: Frames, segs: list[Prepared]) -> Solved:
+def solve(fr: Frames, m: Many) -> Solved:
     """Forward and backward passes over all segments, and per image row the costs its decision needs."""
-    st = _Stack(fr, segs)
+    st = _Stack(fr, m)
     si = fr.image_skip
     w = st.w
     f = _forward(st, si)
@@ -231,11 +308,11 @@ def solve(fr: Frames, segs: list[Prepared]) -> Solved:
     return Solved(opt, st.pos_of_seg, with_skip, vals)
 
 
-def outcomes(card: Card, fr: Frames, segs: list[Prepared], imgs: list[list[int]]) -> list[Outcome]:
-    """Each segment's Outcome, as `align.solve_segment` records it (`imgs[s]`: segment s's images)."""
-    if not segs:
+def outcomes(card: Card, fr: Frames, m: Many) -> list[Outcome]:
+    """Each segment's Outcome, as `align.solve_segment` records it."""
+    if len(m.p) == 0:
         return []
-    solved = solve(fr, segs)
+    solved = solve(fr, m)
     opt_row = np.zeros(len(solved.with_skip))
     for s, rows in enumerate(solved.rows):
         opt_row[rows] = solved.opt[s]
@@ -248,21 +325,31 @@ def outcomes(card: Card, fr: Frames, segs: list[Prepared], imgs: list[list[int]]
         (solved.with_skip > limit_row)
         & (near.sum(axis=1) == 1)
         & (np.abs(solved.vals[np.arange(len(first)), first] - opt_row) < 1e-9)
-    ).tolist()
-    first_l = first.tolist()
+    )
     out: list[Outcome] = []
-    for s, seg in enumerate(segs):
+    cols_all = m.cell_col.tolist()
+    for s, imgs in enumerate(m.imgs):
         part = Outcome(solved.opt[s], {}, {}, {}, set())
-        opt, limit, lo = solved.opt[s], solved.opt[s] + AMBIGUITY_MARGIN, seg.lo
-        rows_s = solved.rows[s].tolist()
-        for r, i in enumerate(imgs[s]):
-            g = int(rows_s[r])
-            ar = seg.band_a[r]
-            if fast[g]:
-                part.pairs[i] = ar + first_l[g] + lo
+        opt, limit, lo = solved.opt[s], solved.opt[s] + AMBIGUITY_MARGIN, int(m.lo[s])
+        rows = solved.rows[s][:-1]
+        a_rows = m.band_a[m.base[s] : m.base[s] + len(imgs)]
+        fast_s = fast[rows]
+        pair_frame = (a_rows + first[rows] + lo).tolist()
+        if bool(fast_s.all()):  # the usual case: every image of the segment paired (in card order)
+            part.pairs = dict(zip(imgs, pair_frame, strict=True))
+            out.append(part)
+            continue
+        fast_l = fast_s.tolist()
+        for r, i in enumerate(imgs):
+            if fast_l[r]:
+                part.pairs[i] = pair_frame[r]
                 continue
+            g = int(rows[r])
+            ar = int(a_rows[r])
             row = solved.vals[g].tolist()
-            with_pair = {bb + lo: row[bb - ar] for bb in seg.pair[r]}
+            x = int(m.base[s]) + r
+            cols = cols_all[int(m.cell_start[x]) : int(m.cell_start[x + 1])]
+            with_pair = {bb + lo: row[bb - ar] for bb in cols}
             mine = next((j for j, v in with_pair.items() if abs(v - opt) < 1e-9), None)
             decide(card, i, with_pair, float(solved.with_skip[g]), mine, limit, part)
         out.append(part)

@@ -40,22 +40,35 @@ STACK_MIN_ABREAST = 4
 _CACHE_MAX_IMAGES = 64  # segments up to this many images are remembered (offset scans repeat most of them)
 
 
-Cands = list[tuple[int, ...]]
-"""Per image, the frames its window admits (ascending)."""
-
-
 Flat = tuple[np.ndarray[Any, np.dtype[np.int64]], np.ndarray[Any, np.dtype[np.int64]]]
 """The windows' frames as arrays: image i's are flat[0][flat[1][i] : flat[1][i + 1]] (none if untimed)."""
 
 
-def windows(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, list[tuple[int, int] | None], Flat]:
-    """Per image: the frames its padded EXIF window admits (timed images), and the frame range it may use."""
+class Cands:
+    """Per image, the frames its window admits (ascending tuples), made from `Flat` when asked for: most
+    images are only ever seen through the arrays (the stacked DP), building 18 000 tuples per solve is not
+    free."""
+
+    def __init__(self, flat: Flat) -> None:
+        self._frames = flat[0].tolist()
+        self._start = flat[1].tolist()
+
+    def __getitem__(self, i: int) -> tuple[int, ...]:
+        return tuple(self._frames[self._start[i] : self._start[i + 1]])
+
+
+IntArray = np.ndarray[Any, np.dtype[np.int64]]
+
+
+def windows(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, IntArray, IntArray, Flat]:
+    """Per image: the frames its padded EXIF window admits (timed images), and the frame range it may use
+    (first, last; -1 where none)."""
     n, m = len(card), len(fr.recs)
     p = np.asarray(model.predict(fr.x), dtype=np.float64)
     tol = fr.tol + widen
     tmax = float(tol.max()) if len(tol) else 0.0
-    cands: list[tuple[int, ...]] = [()] * n
-    ranges: list[tuple[int, int] | None] = [None] * n
+    r0 = np.full(n, -1, dtype=np.int64)
+    r1 = np.full(n, -1, dtype=np.int64)
     ti = card.timed
     per_image = np.zeros(n, dtype=np.int64)
     jj = np.zeros(0, dtype=np.int64)
@@ -70,30 +83,26 @@ def windows(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, 
         pj = p[j]
         dist = np.maximum(np.maximum(lo_t[rep] - pj, pj - hi_t[rep]), 0.0)
         keep = fr.eligible[j] & (dist <= tol[j])  # inside the padded window: timing noise carries no evidence
-        jj, rr = j[keep], rep[keep]
+        jj, rr = j[keep].astype(np.int64), rep[keep]
         counts = np.bincount(rr, minlength=len(ti))
         ends = np.cumsum(counts)
-        begins = ends - counts
         nz = np.flatnonzero(counts)
         per_image[ti] = counts
-        flat = jj.tolist()
-        for i, s0, s1 in zip(ti[nz].tolist(), begins[nz].tolist(), ends[nz].tolist(), strict=True):
-            cand = tuple(flat[s0:s1])
-            cands[i] = cand
-            ranges[i] = (cand[0], cand[-1])
+        r0[ti[nz]] = jj[ends[nz] - counts[nz]]
+        r1[ti[nz]] = jj[ends[nz] - 1]
+    flat = (jj, np.concatenate([[0], np.cumsum(per_image)]).astype(np.int64))
     # Images without a time may take any exposure between their timed neighbours' windows.
     untimed = [i for i in range(n) if not card.has_time(i)] if len(ti) < n else []
     if untimed:
-        placed = [i for i in ti.tolist() if ranges[i] is not None]
+        placed = ti[r0[ti] >= 0].tolist()
         for i in untimed:
             k = bisect.bisect_left(placed, i)
-            before = ranges[placed[k - 1]] if k > 0 else None
-            after = ranges[placed[k]] if k < len(placed) else None
-            lo = before[0] if before is not None else 0
-            hi = after[1] if after is not None else m - 1
+            lo = int(r0[placed[k - 1]]) if k > 0 else 0
+            hi = int(r1[placed[k]]) if k < len(placed) else m - 1
             has = m > 0 and lo <= hi and int(fr.eligible_prefix[hi + 1] - fr.eligible_prefix[lo]) > 0
-            ranges[i] = (lo, hi) if has else None
-    return cands, ranges, (jj.astype(np.int64), np.concatenate([[0], np.cumsum(per_image)]).astype(np.int64))
+            if has:
+                r0[i], r1[i] = lo, hi
+    return Cands(flat), r0, r1, flat
 
 
 Segments = list[tuple[list[int], int, int]]
@@ -121,30 +130,27 @@ def segments(
 def _segments(
     card: Card, fr: Frames, model: Model, widen: float
 ) -> tuple[Cands, list[tuple[int, int] | None], Segments, list[int], Flat]:
-    cands, ranges, flat = windows(card, fr, model, widen)
-    n = len(card)
-    present = [r for r in ranges if r is not None]
+    cands, r0_all, r1_all, flat = windows(card, fr, model, widen)
     segs: Segments = []
     extra: list[int] = []
-    if present:
-        with_range = np.flatnonzero(np.fromiter((r is not None for r in ranges), dtype=bool, count=n))
-        r01 = np.array(present, dtype=np.int64)
-        r0, r1 = r01[:, 0], r01[:, 1]
+    with_range = np.flatnonzero(r0_all >= 0)
+    lo_r = np.full(len(card), -1, dtype=np.int64)
+    hi_r = np.full(len(card), -1, dtype=np.int64)
+    if len(with_range):
+        r0, r1 = r0_all[with_range], r1_all[with_range]
         lo_adj = np.maximum.accumulate(r0)
         kept = lo_adj <= r1
         extra = with_range[~kept].tolist()
-        for i in extra:
-            ranges[i] = None
         ki = with_range[kept]
         klo, khi = lo_adj[kept], r1[kept]
+        lo_r[ki], hi_r[ki] = klo, khi
         reach = np.maximum.accumulate(khi)
         starts = np.flatnonzero(np.concatenate([[True], klo[1:] > reach[:-1]])) if len(ki) else np.zeros(0, int)
         ends = np.concatenate([starts[1:], [len(ki)]]).astype(np.int64)
-        ki_l, klo_l, khi_l, reach_l = ki.tolist(), klo.tolist(), khi.tolist(), reach.tolist()
-        for i, a, b in zip(ki_l, klo_l, khi_l, strict=True):
-            ranges[i] = (a, b)
+        ki_l, klo_l, reach_l = ki.tolist(), klo.tolist(), reach.tolist()
         for s0, s1 in zip(starts.tolist(), ends.tolist(), strict=True):
             segs.append((ki_l[s0:s1], klo_l[s0], reach_l[s1 - 1]))
+    ranges = [None if a < 0 else (a, b) for a, b in zip(lo_r.tolist(), hi_r.tolist(), strict=True)]
     return cands, ranges, segs, extra, flat
 
 

@@ -31,7 +31,7 @@ from icgt.ingest.matching.results import (
     IMAGE_NO_EXPOSURE,
     IMAGE_NO_TIME_UNPLACED,
 )
-from icgt.ingest.matching.state import Card, Frames, Model, Outcome
+from icgt.ingest.matching.state import Card, Frames, Model, Outcome, Ranges
 
 MAX_SEGMENT_CELLS = 4_000_000
 """Band cells of one segment beyond which runs of images without EXIF time are left out of it."""
@@ -50,11 +50,11 @@ class Cands:
     free."""
 
     def __init__(self, flat: Flat) -> None:
-        self._frames = flat[0].tolist()
-        self._start = flat[1].tolist()
+        self.frames: list[int] = flat[0].tolist()
+        self.start: list[int] = flat[1].tolist()
 
     def __getitem__(self, i: int) -> tuple[int, ...]:
-        return tuple(self._frames[self._start[i] : self._start[i + 1]])
+        return tuple(self.frames[self.start[i] : self.start[i + 1]])
 
 
 IntArray = np.ndarray[Any, np.dtype[np.int64]]
@@ -108,9 +108,7 @@ def windows(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, 
 Segments = list[tuple[list[int], int, int]]
 
 
-def segments(
-    card: Card, fr: Frames, model: Model, widen: float
-) -> tuple[Cands, list[tuple[int, int] | None], Segments, list[int], Flat]:
+def segments(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, Ranges, Segments, list[int], Flat]:
     """Windows, ranges made monotone, the independent segments (images, first, last frame), extra images.
 
     Ranges made monotone (a camera numbers in time order): an image may not start before the latest
@@ -120,16 +118,14 @@ def segments(
     read what is returned."""
     key = (model.offset, model.drift, widen)
     if fr.last_segments is not None and fr.last_segments[0] == key:
-        known: tuple[Cands, list[tuple[int, int] | None], Segments, list[int], Flat] = fr.last_segments[1]
+        known: tuple[Cands, Ranges, Segments, list[int], Flat] = fr.last_segments[1]
         return known
     found = _segments(card, fr, model, widen)
     fr.last_segments = (key, found)
     return found
 
 
-def _segments(
-    card: Card, fr: Frames, model: Model, widen: float
-) -> tuple[Cands, list[tuple[int, int] | None], Segments, list[int], Flat]:
+def _segments(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, Ranges, Segments, list[int], Flat]:
     cands, r0_all, r1_all, flat = windows(card, fr, model, widen)
     segs: Segments = []
     extra: list[int] = []
@@ -150,24 +146,24 @@ def _segments(
         ki_l, klo_l, reach_l = ki.tolist(), klo.tolist(), reach.tolist()
         for s0, s1 in zip(starts.tolist(), ends.tolist(), strict=True):
             segs.append((ki_l[s0:s1], klo_l[s0], reach_l[s1 - 1]))
-    ranges = [None if a < 0 else (a, b) for a, b in zip(lo_r.tolist(), hi_r.tolist(), strict=True)]
+    ranges = Ranges(lo_r, hi_r)
     return cands, ranges, segs, extra, flat
 
 
 def _segment_key(
-    card: Card, cands: Cands, ranges: list[tuple[int, int] | None], imgs: list[int], lo: int, hi: int
+    card: Card, cands: Cands, ranges: Ranges, imgs: list[int], lo: int, hi: int
 ) -> tuple[object, ...] | None:
     """The same images seeing the same exposures give the same answer (offset scans repeat most segments)."""
     if len(imgs) > _CACHE_MAX_IMAGES:
         return None
-    has = card.has
-    return (lo, hi, *((i, *cands[i]) if has[i] else (i, ranges[i]) for i in imgs))
+    has, frames, start = card.has, cands.frames, cands.start
+    return (lo, hi, *((i, *frames[start[i] : start[i + 1]]) if has[i] else (i, ranges[i]) for i in imgs))
 
 
 def solve_cost(card: Card, fr: Frames, model: Model, widen: float, limit: float) -> float:
     """The cost of `solve` (forward passes only), or infinity when it exceeds `limit`."""
     cands, ranges, segs, _extra, flat = segments(card, fr, model, widen)
-    cost = sum(fr.image_skip for r in ranges if r is None) + float(fr.skip_prefix[-1])
+    cost = fr.image_skip * len(ranges.missing) + float(fr.skip_prefix[-1])  # (whole numbers: exact)
     for _imgs, lo, hi in segs:
         cost -= float(fr.skip_prefix[hi + 1] - fr.skip_prefix[lo])
     todo: Segments = []
@@ -200,14 +196,11 @@ def solve_cost(card: Card, fr: Frames, model: Model, widen: float, limit: float)
     return cost if cost <= limit else math.inf
 
 
-def _costs(
-    card: Card, fr: Frames, cands: Cands, ranges: list[tuple[int, int] | None], flat: Flat, segs: Segments
-) -> list[float]:
+def _costs(card: Card, fr: Frames, cands: Cands, ranges: Ranges, flat: Flat, segs: Segments) -> list[float]:
     """The optimal cost of each segment: stacked (`batch`) where `_split` says so, else row by row."""
-    stacked, alone = _split(card, fr, ranges, flat, segs)
+    stacked, alone, m = _split(card, fr, ranges, flat, segs)
     out = [0.0] * len(segs)
-    if stacked:
-        m = batch.many(fr, card.has, flat, ranges, [segs[s] for s in stacked])
+    if m is not None:
         for s, c in zip(stacked, batch.costs(fr, m), strict=True):
             out[s] = c
     for s in alone:
@@ -219,23 +212,27 @@ def _costs(
 
 
 def _split(
-    card: Card, fr: Frames, ranges: list[tuple[int, int] | None], flat: Flat, segs: Segments
-) -> tuple[list[int], list[int]]:
+    card: Card, fr: Frames, ranges: Ranges, flat: Flat, segs: Segments
+) -> tuple[list[int], list[int], batch.Many | None]:
     """(segments for the stacked DP, segments for the row-by-row one). Stacked only with whole-number
     costs (`batch.exact_costs`), where there are enough rows abreast to be worth a numpy step per row
-    (a card of one long pass is faster row by row), and where `batch.fits`."""
+    (a card of one long pass is faster row by row), and where `batch.fits`; with the stacked ones' arrays."""
     if not segs or not batch.exact_costs(fr):
-        return [], list(range(len(segs)))
+        return [], list(range(len(segs))), None
     rows = [len(s[0]) for s in segs]
     if sum(rows) < STACK_MIN_ABREAST * max(rows):
-        return [], list(range(len(segs)))
-    return batch.fits(batch.many(fr, card.has, flat, ranges, segs))
+        return [], list(range(len(segs))), None
+    m = batch.many(fr, card.has, flat, ranges, segs)
+    ok, wide = batch.fits(m)
+    if not wide:
+        return ok, wide, m
+    # (rare) the arrays again, without the segments left to the row-by-row DP
+    return ok, wide, batch.many(fr, card.has, flat, ranges, [segs[s] for s in ok]) if ok else None
 
 
 def solve(card: Card, fr: Frames, model: Model, widen: float) -> Outcome:
     """The alignment under `model` with every window widened by `widen` [s]."""
     cands, ranges, segs, extra, flat = segments(card, fr, model, widen)
-    n = len(card)
     out = Outcome(0.0, {}, {}, {}, set())
     for i in extra:
         out.extra[i] = IMAGE_EXTRA
@@ -254,9 +251,8 @@ def solve(card: Card, fr: Frames, model: Model, widen: float) -> Outcome:
             keys[s] = key
         else:
             parts[s] = part
-    stacked, alone = _split(card, fr, ranges, flat, [segs[s] for s in todo])
-    if stacked:
-        m = batch.many(fr, card.has, flat, ranges, [segs[todo[k]] for k in stacked])
+    stacked, alone, m = _split(card, fr, ranges, flat, [segs[s] for s in todo])
+    if m is not None:
         for k, part in zip(stacked, batch.outcomes(card, fr, m), strict=True):
             parts[todo[k]] = part
     for k in alone:
@@ -280,12 +276,10 @@ def solve(card: Card, fr: Frames, model: Model, widen: float) -> Outcome:
         out.ambiguous.update(part.ambiguous)
         out.extra.update(part.extra)
         out.frame_ambiguous.update(part.frame_ambiguous)
-    for i in range(n):
-        if ranges[i] is None and i not in out.extra:
+    for i in ranges.missing:
+        if i not in out.extra:
             out.extra[i] = IMAGE_NO_EXPOSURE if card.has_time(i) else IMAGE_NO_TIME_UNPLACED
-            out.cost += fr.image_skip
-        elif ranges[i] is None and i in out.extra:
-            out.cost += fr.image_skip
+        out.cost += fr.image_skip
     out.cost += float(fr.skip_prefix[-1]) - in_seg_skip
     return out
 
@@ -294,7 +288,7 @@ def _prepare(
     card: Card,
     fr: Frames,
     cands: Cands,
-    ranges: list[tuple[int, int] | None],
+    ranges: Ranges,
     imgs: list[int],
     lo: int,
     hi: int,
@@ -359,7 +353,7 @@ def solve_segment(
     card: Card,
     fr: Frames,
     cands: Cands,
-    ranges: list[tuple[int, int] | None],
+    ranges: Ranges,
     imgs: list[int],
     lo: int,
     hi: int,
@@ -428,7 +422,7 @@ def _solve_single(
     card: Card,
     fr: Frames,
     cands: Cands,
-    ranges: list[tuple[int, int] | None],
+    ranges: Ranges,
     i: int,
     lo: int,
     hi: int,
@@ -455,7 +449,7 @@ def _pair_sets(
     card: Card,
     fr: Frames,
     cands: Cands,
-    ranges: list[tuple[int, int] | None],
+    ranges: Ranges,
     imgs: list[int],
     lo: int,
     hi: int,

@@ -33,7 +33,7 @@ import numpy as np
 
 from icgt.ingest.matching.decide import decide
 from icgt.ingest.matching.results import AMBIGUITY_MARGIN
-from icgt.ingest.matching.state import Card, Frames, Outcome
+from icgt.ingest.matching.state import Card, Frames, Outcome, Ranges
 
 Seg = tuple[list[int], int, int]
 
@@ -69,9 +69,7 @@ class Many:
     cell_start: _I  # [segment-major row] its first cell (rows in order; p rows of a segment then its last)
 
 
-def many(
-    fr: Frames, has: list[bool], flat: tuple[_I, _I], ranges: list[tuple[int, int] | None], segs: list[Seg]
-) -> Many:
+def many(fr: Frames, has: list[bool], flat: tuple[_I, _I], ranges: Ranges, segs: list[Seg]) -> Many:
     """The pair columns and bands of `segs` (each (images, first frame, last frame)), all at once: what
     `align._pair_sets` and `align._bands` give per segment, vectorised over the card."""
     cflat, cstart = flat

@@ -70,6 +70,20 @@ class Card:
         return self.has[i]
 
 
+class Ranges:
+    """Per image the frame range (first, last) it may pair within, None where it has none; held as
+    arrays (-1: none) and read per image, with the images without one listed (ascending)."""
+
+    def __init__(self, lo: IntArray, hi: IntArray) -> None:
+        self._lo: list[int] = lo.tolist()
+        self._hi: list[int] = hi.tolist()
+        self.missing: list[int] = np.flatnonzero(lo < 0).tolist()
+
+    def __getitem__(self, i: int) -> tuple[int, int] | None:
+        a = self._lo[i]
+        return None if a < 0 else (a, self._hi[i])
+
+
 @dataclass
 class Model:
     offset: float  # camera time minus x at x = 0 [s]

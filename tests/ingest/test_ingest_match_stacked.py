@@ -59,9 +59,10 @@ def _cards(draw: st.DrawFn) -> tuple[Card, Frames, list[list[int]], Ranges, list
         segs.append((imgs, lo, lo + q - 1))
     m = len(skip)
     for c in cands:  # windows only hold eligible frames (extra frames past the end are dropped)
-        c[:] = [j for j in c if j < m and (eligible[j] if j < len(eligible) else False)]
+        c[:] = [j for j in c if j < m and eligible[j]]
     times = [ImageTime(Path(f"{i}.JPG"), 1000.0 + i if h else None, 1.0 if h else None) for i, h in enumerate(has)]
-    fr = Frames([], np.zeros(m), np.zeros(m), np.array(eligible, dtype=bool), skip, draw(st.sampled_from([2.0, 10.0])), 0)
+    si = draw(st.sampled_from([2.0, 10.0]))
+    fr = Frames([], np.zeros(m), np.zeros(m), np.array(eligible, dtype=bool), skip, si, 0)
     fr.skip_prefix = np.concatenate([[0.0], np.cumsum(np.array(skip))])
     fr.eligible_prefix = np.concatenate([[0], np.cumsum(np.array(eligible, dtype=np.int64))])
     ranges = Ranges(np.array(lo_r, dtype=np.int64), np.array(hi_r, dtype=np.int64))
@@ -76,8 +77,8 @@ def _flat(cands: list[list[int]]) -> tuple[Any, Any]:
 
 @settings(max_examples=250, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(_cards())
-def test_stacked_dp_equals_the_row_by_row_dp(card_case: tuple[Card, Frames, list[list[int]], Ranges, list[Seg]]) -> None:
-    card, fr, cands, ranges, segs = card_case
+def test_stacked_dp_equals_the_row_by_row_dp(case: tuple[Card, Frames, list[list[int]], Ranges, list[Seg]]) -> None:
+    card, fr, cands, ranges, segs = case
     assert batch.exact_costs(fr)
     m = batch.many(fr, card.has, _flat(cands), ranges, segs)
     ok, wide = batch.fits(m)

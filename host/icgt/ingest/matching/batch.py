@@ -153,7 +153,7 @@ class Solved:
     decides on: leaving the image out, pairing it with each column."""
 
     opt: list[float]
-    rows: list[_I]  # per segment the stacked row of each of its DP rows 0..p
+    pos: _I  # [segment-major row] its stacked row
     with_skip: _F  # [row] best alignment not pairing the image
     vals: _F  # [row, k] best alignment pairing it with column A_r + k (inf: not a pair column)
 
@@ -184,7 +184,7 @@ class _Stack:
         seg_of = np.repeat(np.arange(n_seg), p + 1)
         r_of = np.arange(self.n_rows) - seg_base[seg_of]
         pos = self.start[r_of] + rank[seg_of]  # stacked position of each segment-major row
-        self.pos_of_seg = [pos[seg_base[s] : seg_base[s] + p[s] + 1] for s in range(n_seg)]
+        self.pos = pos
         a_seg, b_seg = m.band_a, m.band_b
         self.w = w = int((b_seg - a_seg).max()) + 1
         ks = np.arange(w, dtype=np.int64)
@@ -303,7 +303,7 @@ def solve(fr: Frames, m: Many) -> Solved:
         with_skip[rows] = (ff[st.f_same[nxt_rows]] + g[nxt_rows, :w]).min(axis=1) + si
         vals[rows] = f[rows, :w] + diag + st.pm_back[rows]
     opt = [float(x) for x in f[st.last, st.last_k]]
-    return Solved(opt, st.pos_of_seg, with_skip, vals)
+    return Solved(opt, st.pos, with_skip, vals)
 
 
 def outcomes(card: Card, fr: Frames, m: Many) -> list[Outcome]:
@@ -311,44 +311,42 @@ def outcomes(card: Card, fr: Frames, m: Many) -> list[Outcome]:
     if len(m.p) == 0:
         return []
     solved = solve(fr, m)
-    opt_row = np.zeros(len(solved.with_skip))
-    for s, rows in enumerate(solved.rows):
-        opt_row[rows] = solved.opt[s]
-    limit_row = opt_row + AMBIGUITY_MARGIN
-    near = solved.vals <= limit_row[:, None]
+    pos = solved.pos
+    # per segment-major row (image r of segment s at base[s] + r): its optimum, what it decides on
+    opt_sm = np.repeat(np.array(solved.opt), m.p + 1)
+    vals = solved.vals[pos]
+    with_skip = solved.with_skip[pos]
+    limit_sm = opt_sm + AMBIGUITY_MARGIN
+    near = vals <= limit_sm[:, None]
     first = np.argmax(near, axis=1)
     # solve_segment's shortcut: leaving the image out is beyond the margin and exactly one pairing is
     # within it, the optimum's; then the image is paired without `decide`'s bookkeeping
     fast = (
-        (solved.with_skip > limit_row)
-        & (near.sum(axis=1) == 1)
-        & (np.abs(solved.vals[np.arange(len(first)), first] - opt_row) < 1e-9)
-    )
-    out: list[Outcome] = []
+        (with_skip > limit_sm) & (near.sum(axis=1) == 1) & (np.abs(vals[np.arange(len(first)), first] - opt_sm) < 1e-9)
+    ).tolist()
+    pair_frame = (m.band_a + first + np.repeat(m.lo, m.p + 1)).tolist()
+    base = m.base.tolist()
     cols_all = m.cell_col.tolist()
+    cell_start = m.cell_start.tolist()
+    band_a = m.band_a.tolist()
+    out: list[Outcome] = []
     for s, imgs in enumerate(m.imgs):
         part = Outcome(solved.opt[s], {}, {}, {}, set())
-        opt, limit, lo = solved.opt[s], solved.opt[s] + AMBIGUITY_MARGIN, int(m.lo[s])
-        rows = solved.rows[s][:-1]
-        a_rows = m.band_a[m.base[s] : m.base[s] + len(imgs)]
-        fast_s = fast[rows]
-        pair_frame = (a_rows + first[rows] + lo).tolist()
-        if bool(fast_s.all()):  # the usual case: every image of the segment paired (in card order)
-            part.pairs = dict(zip(imgs, pair_frame, strict=True))
+        x0 = base[s]
+        x1 = x0 + len(imgs)
+        if all(fast[x0:x1]):  # the usual case: every image of the segment paired (in card order)
+            part.pairs = dict(zip(imgs, pair_frame[x0:x1], strict=True))
             out.append(part)
             continue
-        fast_l = fast_s.tolist()
-        for r, i in enumerate(imgs):
-            if fast_l[r]:
-                part.pairs[i] = pair_frame[r]
+        opt, limit, lo = solved.opt[s], solved.opt[s] + AMBIGUITY_MARGIN, int(m.lo[s])
+        for x, i in zip(range(x0, x1), imgs, strict=True):
+            if fast[x]:
+                part.pairs[i] = pair_frame[x]
                 continue
-            g = int(rows[r])
-            ar = int(a_rows[r])
-            row = solved.vals[g].tolist()
-            x = int(m.base[s]) + r
-            cols = cols_all[int(m.cell_start[x]) : int(m.cell_start[x + 1])]
-            with_pair = {bb + lo: row[bb - ar] for bb in cols}
+            ar = band_a[x]
+            row = vals[x].tolist()
+            with_pair = {bb + lo: row[bb - ar] for bb in cols_all[cell_start[x] : cell_start[x + 1]]}
             mine = next((j for j, v in with_pair.items() if abs(v - opt) < 1e-9), None)
-            decide(card, i, with_pair, float(solved.with_skip[g]), mine, limit, part)
+            decide(card, i, with_pair, float(with_skip[x]), mine, limit, part)
         out.append(part)
     return out

@@ -12,6 +12,13 @@ non-decreasing. Left of A_r nothing later can pair, right of B_r nothing earlier
 there follow from the band's edge plus the frames' skip costs (prefix sums), and every minimum the
 ambiguity test takes lies inside the band. The result equals the full DP's; time and memory are the
 sum of the band widths, a few exposures per image, instead of images x exposures per segment.
+
+Stacked: the segments of one solve are independent, so `batch` runs the same banded DP for all of them
+at once, one numpy step per row (what it computes is the same, see its docstring); `solve_segment` is
+the row-by-row DP, used where stacking does not pay (a card of one long pass: nothing to run abreast)
+or does not apply (costs that are not whole numbers, very wide bands), and the reference the stacked DP
+is tested against. Windows and ranges are kept as arrays (`Flat`, `Ranges`): per-image Python tuples
+are only built where a segment is cached or solved row by row.
 """
 
 from __future__ import annotations

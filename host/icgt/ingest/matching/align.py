@@ -57,6 +57,8 @@ class Cands:
     free."""
 
     def __init__(self, flat: Flat) -> None:
+        self.jj = flat[0]
+        self.counts = np.diff(flat[1])
         self.frames: list[int] = flat[0].tolist()
         self.start: list[int] = flat[1].tolist()
 
@@ -160,11 +162,21 @@ def _segments(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands
 def _segment_key(
     card: Card, cands: Cands, ranges: Ranges, imgs: list[int], lo: int, hi: int
 ) -> tuple[object, ...] | None:
-    """The same images seeing the same exposures give the same answer (offset scans repeat most segments)."""
+    """The same images seeing the same exposures give the same answer (offset scans repeat most segments).
+
+    As bytes, not per-image tuples (a solve keys thousands of small segments): the frames of the windows
+    of every image from the segment's first to its last with their counts (which say which frames are
+    whose), and the ranges of its images without a time. Images in between that are not in the segment
+    only make the key stricter (a miss, solved again), never a wrong hit."""
     if len(imgs) > _CACHE_MAX_IMAGES:
         return None
-    has, frames, start = card.has, cands.frames, cands.start
-    return (lo, hi, *((i, *frames[start[i] : start[i + 1]]) if has[i] else (i, ranges[i]) for i in imgs))
+    i0, i1 = imgs[0], imgs[-1] + 1
+    s0, s1 = cands.start[i0], cands.start[i1]
+    key: tuple[object, ...] = (lo, hi, tuple(imgs), cands.jj[s0:s1].tobytes(), cands.counts[i0:i1].tobytes())
+    if card.untimed_prefix[i1] > card.untimed_prefix[i0]:
+        has = card.has
+        key += tuple(ranges[i] for i in imgs if not has[i])
+    return key
 
 
 def solve_cost(card: Card, fr: Frames, model: Model, widen: float, limit: float) -> float:

@@ -54,6 +54,7 @@ class Card:
     r: FloatArray  # interval length (the resolution) [s]
     timed: IntArray  # indices of images with a time, in card order
     has: list[bool]  # has[i]: image i has an EXIF time
+    untimed_prefix: list[int]  # untimed_prefix[i]: images without a time before image i
 
     @classmethod
     def of(cls, times: Sequence[ImageTime]) -> Card:
@@ -61,7 +62,9 @@ class Card:
         c = np.array([t.time_s if t.time_s is not None else np.nan for t in ts], dtype=np.float64)
         r = np.array([t.resolution_s if t.resolution_s is not None else np.nan for t in ts], dtype=np.float64)
         timed = np.flatnonzero(~(np.isnan(c) | np.isnan(r))).astype(np.int64)
-        return cls(ts, c, r, timed, [t.time_s is not None for t in ts])
+        has = [t.time_s is not None for t in ts]
+        untimed = np.concatenate([[0], np.cumsum(~np.array(has, dtype=bool))]).astype(np.int64)
+        return cls(ts, c, r, timed, has, untimed.tolist())
 
     def __len__(self) -> int:
         return len(self.times)

@@ -81,8 +81,9 @@ def test_stacked_dp_equals_the_row_by_row_dp(case: tuple[Card, Frames, list[list
     card, fr, cands, ranges, segs = case
     assert batch.exact_costs(fr)
     m = batch.many(fr, card.has, _flat(cands), ranges, segs)
-    ok, wide = batch.fits(m)
+    ok, wide = batch.fits(m, align.MAX_SEGMENT_CELLS)
     assert ok == list(range(len(segs))) and not wide
+    assert batch.fits(m, 0) == ([], list(range(len(segs))))  # too many cells: all row by row
     stacked = batch.outcomes(card, fr, m)
     costs = batch.costs(fr, m)
     windows = [tuple(c) for c in cands]

@@ -242,7 +242,7 @@ def _split(
     if sum(rows) < STACK_MIN_ABREAST * max(rows):
         return [], list(range(len(segs))), None
     m = batch.many(fr, card.has, flat, ranges, segs)
-    ok, wide = batch.fits(m)
+    ok, wide = batch.fits(m, MAX_SEGMENT_CELLS)
     if not wide:
         return ok, wide, m
     # (rare) the arrays again, without the segments left to the row-by-row DP

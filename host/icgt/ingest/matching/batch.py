@@ -135,15 +135,14 @@ def many(fr: Frames, has: list[bool], flat: tuple[_I, _I], ranges: Ranges, segs:
     return Many(lo, q, p, base, imgs, band_a, band_b, cell_row, cell_col, cell_start)
 
 
-def fits(m: Many) -> tuple[list[int], list[int]]:
+def fits(m: Many, max_cells: int) -> tuple[list[int], list[int]]:
     """(segments the stack takes, segments left to the row-by-row DP): those whose band cells exceed
-    `align.MAX_SEGMENT_CELLS` (it then leaves images out) or whose band is wider than MAX_WIDTH."""
-    from icgt.ingest.matching.align import MAX_SEGMENT_CELLS
-
+    `max_cells` (`align.MAX_SEGMENT_CELLS`: it then leaves images out) or whose band is wider than
+    MAX_WIDTH."""
     widths = m.band_b - m.band_a + 1
     cells = np.add.reduceat(widths, m.base)
     wide = np.maximum.reduceat(widths, m.base)
-    ok = (cells <= MAX_SEGMENT_CELLS) & (wide <= MAX_WIDTH)
+    ok = (cells <= max_cells) & (wide <= MAX_WIDTH)
     return np.flatnonzero(ok).tolist(), np.flatnonzero(~ok).tolist()
 
 

@@ -2,6 +2,12 @@
 """Benchmark: `icgt match` on whole-day cards against reading the same cards' EXIF alone (the floor).
 
     .venv/bin/python benchmarks/match_scaling.py [--sizes 500,2000,8000,18000] [--resolutions 1s,10ms]
+        [--baseline DIR]
+
+`--baseline DIR`: also measure the `icgt` package under DIR (another revision's host/ folder, e.g.
+`git archive main host | tar -x -C /tmp/base` then DIR=/tmp/base/host) on the same cards in the same run,
+printed as a `base` row right after each `match` row (its output is compared too: "same" when both
+revisions give byte-identical JSON results).
 
 The captures are synthetic but faulty the way real ones are: 5 fps triggered capture in passes of
 600 shots with 20-60 s pauses between them, 2 ms timing jitter, a camera clock an hour and 0.37 s
@@ -25,6 +31,7 @@ ratio are the steadier figures.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import math
 import os
@@ -156,6 +163,13 @@ def _paths(card: Path, n: int) -> list[Path]:
     return [card / _file_name(k) for k in range(n)]
 
 
+def _use_source(src: str) -> None:
+    """Import `icgt` from `src` instead of the installed (editable) package: its import hook sits in
+    sys.meta_path ahead of sys.path, so it is taken out."""
+    sys.meta_path[:] = [f for f in sys.meta_path if not type(f).__module__.startswith("_editable")]
+    sys.path.insert(0, src)
+
+
 def _child(what: str, resolution: str, n: int) -> dict[str, Any]:
     card = _card(resolution)
     paths = _paths(card, n)
@@ -180,6 +194,7 @@ def _child(what: str, resolution: str, n: int) -> dict[str, Any]:
         out["ambiguous"] = len(result.ambiguous)
         out["unmatched_images"] = len(result.unmatched_images)
         out["frames"] = len(frames)
+        out["digest"] = hashlib.sha256(json.dumps(result.to_json()).encode()).hexdigest()
     out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return out
 
@@ -191,8 +206,10 @@ def _warm(paths: list[Path]) -> None:
         p.read_bytes()
 
 
-def _measure(what: str, resolution: str, n: int) -> dict[str, Any]:
+def _measure(what: str, resolution: str, n: int, src: str | None = None) -> dict[str, Any]:
     cmd = [sys.executable, __file__, "--child", what, "--resolutions", resolution, "--sizes", str(n)]
+    if src is not None:
+        cmd += ["--src", src]
     proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if proc.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed:\n{proc.stderr}")
@@ -204,8 +221,12 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", default=",".join(str(s) for s in SIZES))
     parser.add_argument("--resolutions", default=",".join(RESOLUTIONS))
+    parser.add_argument("--baseline", help="another revision's host/ folder, measured in the same run")
     parser.add_argument("--child", choices=("exif", "match"), help=argparse.SUPPRESS)
+    parser.add_argument("--src", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.src:
+        _use_source(args.src)
     sizes = [int(s) for s in args.sizes.split(",") if s]
     resolutions = [r for r in args.resolutions.split(",") if r]
     if any(not 0 < n <= N_MAX for n in sizes) or any(r not in RESOLUTIONS for r in resolutions):
@@ -226,6 +247,7 @@ def main() -> int:
             _warm(_paths(_card(r), n))
             floor = _measure("exif", r, n)
             match = _measure("match", r, n)
+            base = _measure("match", r, n, str(Path(args.baseline).resolve())) if args.baseline else None
             again = _measure("exif", r, n)
             floor = {
                 **floor,
@@ -241,6 +263,16 @@ def main() -> int:
                 flush=True,
             )
             ok = ok and match["wrong"] == 0
+            if base is not None:
+                same = "same" if base["digest"] == match["digest"] else "DIFFERENT results"
+                print(
+                    f"{'base':>5} {n:>6} | {'':>7} {'':>6} {'':>5} |"
+                    f" {base['wall_s']:>7.2f} {base['cpu_s']:>6.2f} {base['peak_rss_mb']:>5.0f} |"
+                    f" {base['wall_s'] / floor['wall_s']:>7.2f} {base['cpu_s'] / floor['cpu_s']:>6.2f} |"
+                    f" {base['pairs']:>6} {base['ambiguous']:>5} {base['wrong']:>5}  {same}",
+                    flush=True,
+                )
+                ok = ok and same == "same"
             if n == N_MAX:
                 wall_ok = match["wall_s"] < 60.0 and match["peak_rss_mb"] < 1024.0 and ratio <= 3.0
                 cpu_ok = match["cpu_s"] < 60.0 and match["peak_rss_mb"] < 1024.0 and ratio_cpu <= 3.0

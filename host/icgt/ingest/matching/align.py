@@ -12,6 +12,13 @@ non-decreasing. Left of A_r nothing later can pair, right of B_r nothing earlier
 there follow from the band's edge plus the frames' skip costs (prefix sums), and every minimum the
 ambiguity test takes lies inside the band. The result equals the full DP's; time and memory are the
 sum of the band widths, a few exposures per image, instead of images x exposures per segment.
+
+Stacked: the segments of one solve are independent, so `batch` runs the same banded DP for all of them
+at once, one numpy step per row (what it computes is the same, see its docstring); `solve_segment` is
+the row-by-row DP, used where stacking does not pay (a card of one long pass: nothing to run abreast)
+or does not apply (costs that are not whole numbers, very wide bands), and the reference the stacked DP
+is tested against. Windows and ranges are kept as arrays (`Flat`, `Ranges`): per-image Python tuples
+are only built where a segment is cached or solved row by row.
 """
 
 from __future__ import annotations
@@ -19,35 +26,61 @@ from __future__ import annotations
 import bisect
 import math
 import operator
+from typing import Any
 
 import numpy as np
 
+from icgt.ingest.matching import batch
+from icgt.ingest.matching.decide import decide
 from icgt.ingest.matching.results import (
     AMBIGUITY_MARGIN,
     IMAGE_EXTRA,
     IMAGE_NO_EXPOSURE,
     IMAGE_NO_TIME_UNPLACED,
 )
-from icgt.ingest.matching.state import Card, Frames, Model, Outcome
+from icgt.ingest.matching.state import Card, Frames, Model, Outcome, Ranges
 
 MAX_SEGMENT_CELLS = 4_000_000
 """Band cells of one segment beyond which runs of images without EXIF time are left out of it."""
+STACK_MIN_ABREAST = 4
+"""The stacked DP is used when the segments' rows add up to at least this many times the longest's."""
 _CACHE_MAX_IMAGES = 64  # segments up to this many images are remembered (offset scans repeat most of them)
 
 
-Cands = list[tuple[int, ...]]
-"""Per image, the frames its window admits (ascending)."""
+Flat = tuple[np.ndarray[Any, np.dtype[np.int64]], np.ndarray[Any, np.dtype[np.int64]]]
+"""The windows' frames as arrays: image i's are flat[0][flat[1][i] : flat[1][i + 1]] (none if untimed)."""
 
 
-def windows(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, list[tuple[int, int] | None]]:
-    """Per image: the frames its padded EXIF window admits (timed images), and the frame range it may use."""
+class Cands:
+    """Per image, the frames its window admits (ascending tuples), made from `Flat` when asked for: most
+    images are only ever seen through the arrays (the stacked DP), building 18 000 tuples per solve is not
+    free."""
+
+    def __init__(self, flat: Flat) -> None:
+        self.jj = flat[0]
+        self.counts = np.diff(flat[1])
+        self.frames: list[int] = flat[0].tolist()
+        self.start: list[int] = flat[1].tolist()
+
+    def __getitem__(self, i: int) -> tuple[int, ...]:
+        return tuple(self.frames[self.start[i] : self.start[i + 1]])
+
+
+IntArray = np.ndarray[Any, np.dtype[np.int64]]
+
+
+def windows(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, IntArray, IntArray, Flat]:
+    """Per image: the frames its padded EXIF window admits (timed images), and the frame range it may use
+    (first, last; -1 where none)."""
     n, m = len(card), len(fr.recs)
     p = np.asarray(model.predict(fr.x), dtype=np.float64)
     tol = fr.tol + widen
     tmax = float(tol.max()) if len(tol) else 0.0
-    cands: list[tuple[int, ...]] = [()] * n
-    ranges: list[tuple[int, int] | None] = [None] * n
+    r0 = np.full(n, -1, dtype=np.int64)
+    r1 = np.full(n, -1, dtype=np.int64)
     ti = card.timed
+    per_image = np.zeros(n, dtype=np.int64)
+    jj = np.zeros(0, dtype=np.int64)
     if len(ti) and m:
         lo_t, hi_t = card.c[ti], card.c[ti] + card.r[ti]
         a = np.searchsorted(p, lo_t - tmax, side="left")
@@ -59,37 +92,32 @@ def windows(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, 
         pj = p[j]
         dist = np.maximum(np.maximum(lo_t[rep] - pj, pj - hi_t[rep]), 0.0)
         keep = fr.eligible[j] & (dist <= tol[j])  # inside the padded window: timing noise carries no evidence
-        jj, rr = j[keep], rep[keep]
+        jj, rr = j[keep].astype(np.int64), rep[keep]
         counts = np.bincount(rr, minlength=len(ti))
         ends = np.cumsum(counts)
-        begins = ends - counts
         nz = np.flatnonzero(counts)
-        flat = jj.tolist()
-        for i, s0, s1 in zip(ti[nz].tolist(), begins[nz].tolist(), ends[nz].tolist(), strict=True):
-            cand = tuple(flat[s0:s1])
-            cands[i] = cand
-            ranges[i] = (cand[0], cand[-1])
+        per_image[ti] = counts
+        r0[ti[nz]] = jj[ends[nz] - counts[nz]]
+        r1[ti[nz]] = jj[ends[nz] - 1]
+    flat = (jj, np.concatenate([[0], np.cumsum(per_image)]).astype(np.int64))
     # Images without a time may take any exposure between their timed neighbours' windows.
     untimed = [i for i in range(n) if not card.has_time(i)] if len(ti) < n else []
     if untimed:
-        placed = [i for i in ti.tolist() if ranges[i] is not None]
+        placed = ti[r0[ti] >= 0].tolist()
         for i in untimed:
             k = bisect.bisect_left(placed, i)
-            before = ranges[placed[k - 1]] if k > 0 else None
-            after = ranges[placed[k]] if k < len(placed) else None
-            lo = before[0] if before is not None else 0
-            hi = after[1] if after is not None else m - 1
+            lo = int(r0[placed[k - 1]]) if k > 0 else 0
+            hi = int(r1[placed[k]]) if k < len(placed) else m - 1
             has = m > 0 and lo <= hi and int(fr.eligible_prefix[hi + 1] - fr.eligible_prefix[lo]) > 0
-            ranges[i] = (lo, hi) if has else None
-    return cands, ranges
+            if has:
+                r0[i], r1[i] = lo, hi
+    return Cands(flat), r0, r1, flat
 
 
 Segments = list[tuple[list[int], int, int]]
 
 
-def segments(
-    card: Card, fr: Frames, model: Model, widen: float
-) -> tuple[Cands, list[tuple[int, int] | None], Segments, list[int]]:
+def segments(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, Ranges, Segments, list[int], Flat]:
     """Windows, ranges made monotone, the independent segments (images, first, last frame), extra images.
 
     Ranges made monotone (a camera numbers in time order): an image may not start before the latest
@@ -99,61 +127,68 @@ def segments(
     read what is returned."""
     key = (model.offset, model.drift, widen)
     if fr.last_segments is not None and fr.last_segments[0] == key:
-        known: tuple[Cands, list[tuple[int, int] | None], Segments, list[int]] = fr.last_segments[1]
+        known: tuple[Cands, Ranges, Segments, list[int], Flat] = fr.last_segments[1]
         return known
     found = _segments(card, fr, model, widen)
     fr.last_segments = (key, found)
     return found
 
 
-def _segments(
-    card: Card, fr: Frames, model: Model, widen: float
-) -> tuple[Cands, list[tuple[int, int] | None], Segments, list[int]]:
-    cands, ranges = windows(card, fr, model, widen)
-    n = len(card)
-    present = [r for r in ranges if r is not None]
+def _segments(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, Ranges, Segments, list[int], Flat]:
+    cands, r0_all, r1_all, flat = windows(card, fr, model, widen)
     segs: Segments = []
     extra: list[int] = []
-    if present:
-        with_range = np.flatnonzero(np.fromiter((r is not None for r in ranges), dtype=bool, count=n))
-        r01 = np.array(present, dtype=np.int64)
-        r0, r1 = r01[:, 0], r01[:, 1]
+    with_range = np.flatnonzero(r0_all >= 0)
+    lo_r = np.full(len(card), -1, dtype=np.int64)
+    hi_r = np.full(len(card), -1, dtype=np.int64)
+    if len(with_range):
+        r0, r1 = r0_all[with_range], r1_all[with_range]
         lo_adj = np.maximum.accumulate(r0)
         kept = lo_adj <= r1
         extra = with_range[~kept].tolist()
-        for i in extra:
-            ranges[i] = None
         ki = with_range[kept]
         klo, khi = lo_adj[kept], r1[kept]
+        lo_r[ki], hi_r[ki] = klo, khi
         reach = np.maximum.accumulate(khi)
         starts = np.flatnonzero(np.concatenate([[True], klo[1:] > reach[:-1]])) if len(ki) else np.zeros(0, int)
         ends = np.concatenate([starts[1:], [len(ki)]]).astype(np.int64)
-        ki_l, klo_l, khi_l, reach_l = ki.tolist(), klo.tolist(), khi.tolist(), reach.tolist()
-        for i, a, b in zip(ki_l, klo_l, khi_l, strict=True):
-            ranges[i] = (a, b)
+        ki_l, klo_l, reach_l = ki.tolist(), klo.tolist(), reach.tolist()
         for s0, s1 in zip(starts.tolist(), ends.tolist(), strict=True):
             segs.append((ki_l[s0:s1], klo_l[s0], reach_l[s1 - 1]))
-    return cands, ranges, segs, extra
+    ranges = Ranges(lo_r, hi_r)
+    return cands, ranges, segs, extra, flat
 
 
 def _segment_key(
-    card: Card, cands: Cands, ranges: list[tuple[int, int] | None], imgs: list[int], lo: int, hi: int
+    card: Card, cands: Cands, ranges: Ranges, imgs: list[int], lo: int, hi: int
 ) -> tuple[object, ...] | None:
-    """The same images seeing the same exposures give the same answer (offset scans repeat most segments)."""
+    """The same images seeing the same exposures give the same answer (offset scans repeat most segments).
+
+    As bytes, not per-image tuples (a solve keys thousands of small segments): the frames of the windows
+    of every image from the segment's first to its last with their counts (which say which frames are
+    whose), and the ranges of its images without a time. Images in between that are not in the segment
+    only make the key stricter (a miss, solved again), never a wrong hit."""
     if len(imgs) > _CACHE_MAX_IMAGES:
         return None
-    has = card.has
-    return (lo, hi, *((i, *cands[i]) if has[i] else (i, ranges[i]) for i in imgs))
+    i0, i1 = imgs[0], imgs[-1] + 1
+    s0, s1 = cands.start[i0], cands.start[i1]
+    key: tuple[object, ...] = (lo, hi, tuple(imgs), cands.jj[s0:s1].tobytes(), cands.counts[i0:i1].tobytes())
+    if card.untimed_prefix[i1] > card.untimed_prefix[i0]:
+        has = card.has
+        key += tuple(ranges[i] for i in imgs if not has[i])
+    return key
 
 
 def solve_cost(card: Card, fr: Frames, model: Model, widen: float, limit: float) -> float:
-    """The cost of `solve` (forward passes only), or infinity as soon as it is known to exceed `limit`."""
-    cands, ranges, segs, _extra = segments(card, fr, model, widen)
-    cost = sum(fr.image_skip for r in ranges if r is None) + float(fr.skip_prefix[-1])
+    """The cost of `solve` (forward passes only), or infinity when it exceeds `limit`."""
+    cands, ranges, segs, _extra, flat = segments(card, fr, model, widen)
+    cost = fr.image_skip * len(ranges.missing) + float(fr.skip_prefix[-1])  # (whole numbers: exact)
     for _imgs, lo, hi in segs:
         cost -= float(fr.skip_prefix[hi + 1] - fr.skip_prefix[lo])
+    todo: Segments = []
+    keys: list[tuple[object, ...] | None] = []
     for imgs, lo, hi in segs:
-        if cost > limit:
+        if cost > limit:  # segment costs are never negative: the rest cannot bring it back
             return math.inf
         if len(imgs) == 1:
             one = _pair_sets(card, fr, cands, ranges, imgs, lo, hi)[0]
@@ -166,47 +201,104 @@ def solve_cost(card: Card, fr: Frames, model: Model, widen: float, limit: float)
             cost += known.cost
             continue
         seg_cost = fr.cost_cache.get(key) if key is not None else None
-        if seg_cost is None:
-            _imgs, pair, band_a, band_b, pf, sf = _prepare(card, fr, cands, ranges, imgs, lo, hi, None)
-            f = _forward(pair, band_a, band_b, pf, sf, fr.image_skip)
-            seg_cost = _f_at(f, band_a, band_b, pf, len(pair), hi - lo + 1)
-            if key is not None:
-                fr.cost_cache[key] = seg_cost
+        if seg_cost is None:  # costed below, all at once
+            todo.append((imgs, lo, hi))
+            keys.append(key)
+            continue
+        cost += seg_cost
+    if cost > limit:
+        return math.inf
+    for key, seg_cost in zip(keys, _costs(card, fr, cands, ranges, flat, todo), strict=True):
+        if key is not None:
+            fr.cost_cache[key] = seg_cost
         cost += seg_cost
     return cost if cost <= limit else math.inf
 
 
+def _costs(card: Card, fr: Frames, cands: Cands, ranges: Ranges, flat: Flat, segs: Segments) -> list[float]:
+    """The optimal cost of each segment: stacked (`batch`) where `_split` says so, else row by row."""
+    stacked, alone, m = _split(card, fr, ranges, flat, segs)
+    out = [0.0] * len(segs)
+    if m is not None:
+        for s, c in zip(stacked, batch.costs(fr, m), strict=True):
+            out[s] = c
+    for s in alone:
+        imgs, lo, hi = segs[s]
+        _imgs, pair, band_a, band_b, pf, sf = _prepare(card, fr, cands, ranges, imgs, lo, hi, None)
+        f = _forward(pair, band_a, band_b, pf, sf, fr.image_skip)
+        out[s] = _f_at(f, band_a, band_b, pf, len(pair), hi - lo + 1)
+    return out
+
+
+def _split(
+    card: Card, fr: Frames, ranges: Ranges, flat: Flat, segs: Segments
+) -> tuple[list[int], list[int], batch.Many | None]:
+    """(segments for the stacked DP, segments for the row-by-row one). Stacked only with whole-number
+    costs (`batch.exact_costs`), where there are enough rows abreast to be worth a numpy step per row
+    (a card of one long pass is faster row by row), and where `batch.fits`; with the stacked ones' arrays."""
+    if not segs or not batch.exact_costs(fr):
+        return [], list(range(len(segs))), None
+    rows = [len(s[0]) for s in segs]
+    if sum(rows) < STACK_MIN_ABREAST * max(rows):
+        return [], list(range(len(segs))), None
+    m = batch.many(fr, card.has, flat, ranges, segs)
+    ok, wide = batch.fits(m, MAX_SEGMENT_CELLS)
+    if not wide:
+        return ok, wide, m
+    # (rare) the arrays again, without the segments left to the row-by-row DP
+    return ok, wide, batch.many(fr, card.has, flat, ranges, [segs[s] for s in ok]) if ok else None
+
+
 def solve(card: Card, fr: Frames, model: Model, widen: float) -> Outcome:
     """The alignment under `model` with every window widened by `widen` [s]."""
-    cands, ranges, segs, extra = segments(card, fr, model, widen)
-    n = len(card)
+    cands, ranges, segs, extra, flat = segments(card, fr, model, widen)
     out = Outcome(0.0, {}, {}, {}, set())
     for i in extra:
         out.extra[i] = IMAGE_EXTRA
-    in_seg_skip = 0.0
-    for imgs, lo, hi in segs:
-        in_seg_skip += float(fr.skip_prefix[hi + 1] - fr.skip_prefix[lo])
+    # The segments of several images solved first (stacked where `_split` says so, else one by one),
+    # then merged in card order (dict order is the report's order).
+    parts: dict[int, Outcome] = {}
+    todo: list[int] = []
+    keys: dict[int, tuple[object, ...] | None] = {}
+    for s, (imgs, lo, hi) in enumerate(segs):
         if len(imgs) == 1:
-            out.cost += _solve_single(card, fr, cands, ranges, imgs[0], lo, hi, out)
             continue
         key = _segment_key(card, cands, ranges, imgs, lo, hi)
         part = fr.cache.get(key) if key is not None else None
         if part is None:
-            part = Outcome(0.0, {}, {}, {}, set())
-            solve_segment(card, fr, cands, ranges, imgs, lo, hi, part)
-            if key is not None:
-                fr.cache[key] = part
+            todo.append(s)
+            keys[s] = key
+        else:
+            parts[s] = part
+    stacked, alone, m = _split(card, fr, ranges, flat, [segs[s] for s in todo])
+    if m is not None:
+        for k, part in zip(stacked, batch.outcomes(card, fr, m), strict=True):
+            parts[todo[k]] = part
+    for k in alone:
+        imgs, lo, hi = segs[todo[k]]
+        part = Outcome(0.0, {}, {}, {}, set())
+        solve_segment(card, fr, cands, ranges, imgs, lo, hi, part)
+        parts[todo[k]] = part
+    for s in todo:
+        key = keys[s]
+        if key is not None:
+            fr.cache[key] = parts[s]
+    in_seg_skip = 0.0
+    for s, (imgs, lo, hi) in enumerate(segs):
+        in_seg_skip += float(fr.skip_prefix[hi + 1] - fr.skip_prefix[lo])
+        if len(imgs) == 1:
+            out.cost += _solve_single(card, fr, cands, ranges, imgs[0], lo, hi, out)
+            continue
+        part = parts[s]
         out.cost += part.cost
         out.pairs.update(part.pairs)
         out.ambiguous.update(part.ambiguous)
         out.extra.update(part.extra)
         out.frame_ambiguous.update(part.frame_ambiguous)
-    for i in range(n):
-        if ranges[i] is None and i not in out.extra:
+    for i in ranges.missing:
+        if i not in out.extra:
             out.extra[i] = IMAGE_NO_EXPOSURE if card.has_time(i) else IMAGE_NO_TIME_UNPLACED
-            out.cost += fr.image_skip
-        elif ranges[i] is None and i in out.extra:
-            out.cost += fr.image_skip
+        out.cost += fr.image_skip
     out.cost += float(fr.skip_prefix[-1]) - in_seg_skip
     return out
 
@@ -215,7 +307,7 @@ def _prepare(
     card: Card,
     fr: Frames,
     cands: Cands,
-    ranges: list[tuple[int, int] | None],
+    ranges: Ranges,
     imgs: list[int],
     lo: int,
     hi: int,
@@ -280,7 +372,7 @@ def solve_segment(
     card: Card,
     fr: Frames,
     cands: Cands,
-    ranges: list[tuple[int, int] | None],
+    ranges: Ranges,
     imgs: list[int],
     lo: int,
     hi: int,
@@ -335,21 +427,21 @@ def solve_segment(
             near_k = [k for k, v in enumerate(vals) if v <= limit]
             if len(near_k) == 1 and abs(vals[near_k[0]] - opt) < 1e-9:
                 # the usual case: one exposure fits within the margin, it is the optimum's, and leaving
-                # the image out costs too much (what `_decide` concludes, without its bookkeeping)
+                # the image out costs too much (what `decide` concludes, without its bookkeeping)
                 out.pairs[imgs[r]] = cols[near_k[0]] + lo
                 continue
         with_pair = {bb + lo: v for bb, v in zip(cols, vals, strict=True)}
         # The optimum's own pairing of image r. Where several alignments are optimal any of them will
         # do: the image is then ambiguous whichever is taken (the others are within the margin).
         mine = next((j for j, v in with_pair.items() if abs(v - opt) < 1e-9), None)
-        _decide(card, imgs[r], with_pair, with_skip, mine, limit, out)
+        decide(card, imgs[r], with_pair, with_skip, mine, limit, out)
 
 
 def _solve_single(
     card: Card,
     fr: Frames,
     cands: Cands,
-    ranges: list[tuple[int, int] | None],
+    ranges: Ranges,
     i: int,
     lo: int,
     hi: int,
@@ -368,43 +460,15 @@ def _solve_single(
         if abs(with_pair[j] - opt) < 1e-9:
             mine = j
             break
-    _decide(card, i, with_pair, with_skip, mine, opt + AMBIGUITY_MARGIN, out)
+    decide(card, i, with_pair, with_skip, mine, opt + AMBIGUITY_MARGIN, out)
     return opt
-
-
-def _decide(
-    card: Card, i: int, with_pair: dict[int, float], with_skip: float, mine: int | None, limit: float, out: Outcome
-) -> None:
-    """Pair image i as the optimum does only if no alignment within the margin does otherwise."""
-    alts = [v for j, v in with_pair.items() if j != mine]
-    if mine is not None:
-        alts.append(with_skip)
-    alt = min(alts, default=math.inf)
-    near = sorted(j for j, v in with_pair.items() if v <= limit)
-    if alt > limit:
-        if mine is not None:
-            out.pairs[i] = mine
-        else:
-            out.extra[i] = IMAGE_EXTRA
-        return
-    if mine is None and not near:
-        out.extra[i] = IMAGE_EXTRA
-        return
-    if not card.has_time(i):
-        why = "no EXIF time and the order does not single out one exposure"
-    elif with_skip <= limit:
-        why = "its EXIF time fits these exposures and the counts do not say which image is the extra one"
-    else:
-        why = "its EXIF time fits several exposures and the order does not decide"
-    out.ambiguous[i] = (near, why)
-    out.frame_ambiguous.update(near)
 
 
 def _pair_sets(
     card: Card,
     fr: Frames,
     cands: Cands,
-    ranges: list[tuple[int, int] | None],
+    ranges: Ranges,
     imgs: list[int],
     lo: int,
     hi: int,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from icgt.ingest.matching.results import ImageTime
-from icgt.ingest.matching.state import Card, Frames, Model
+from icgt.ingest.matching.state import Card, FloatArray, Frames, Model
 
 DRIFT_REPORT_PPM = 20.0
 """The drift is reported when drifts this far from the fit explain the pairs clearly worse."""
@@ -91,13 +91,20 @@ def offset_candidates(times: list[ImageTime], fr: Frames, widen: float, keep: in
     c_end = np.append(c_sorted, np.inf)
     r_by_c = r[np.argsort(c, kind="stable")]
 
-    def score(o: float, slack: float = 0.0) -> int:
+    def scores(offsets: FloatArray, slack: float = 0.0) -> list[int]:
+        """Per offset: images with an exposure in their window plus exposures with an image in theirs.
+        A few dozen offsets per numpy call (hundreds are scored; the same element-wise arithmetic as one
+        at a time, so the same counts)."""
         t = tol + slack
-        lo = np.searchsorted(xe, c_sorted - o - t, side="left")
-        images = int(np.count_nonzero(xe_end[lo] <= c_sorted + r_by_c - o + t))
-        pe = xe + o
-        a = np.searchsorted(c_sorted, pe - r_max - t, side="left")
-        return images + int(np.count_nonzero(c_end[a] <= pe + t))
+        out: list[int] = []
+        for k in range(0, len(offsets), 32):
+            o = offsets[k : k + 32, None]
+            lo = np.searchsorted(xe, c_sorted[None, :] - o - t, side="left")
+            images = np.count_nonzero(xe_end[lo] <= c_sorted[None, :] + r_by_c[None, :] - o + t, axis=1)
+            pe = xe[None, :] + o
+            a = np.searchsorted(c_sorted, pe - r_max - t, side="left")
+            out.extend((images + np.count_nonzero(c_end[a] <= pe + t, axis=1)).tolist())
+        return out
 
     step = max(1, len(timed) // 40)
     sample = np.arange(0, len(timed), step)[:40]
@@ -105,10 +112,10 @@ def offset_candidates(times: list[ImageTime], fr: Frames, widen: float, keep: in
     coarse_q = max(1.0, r_max)
     bins, counts = np.unique(np.floor(votes / coarse_q), return_counts=True)
     top = bins[np.argsort(-counts, kind="stable")[:200]]
-    coarse = sorted(((score(float((k + 0.5) * coarse_q), coarse_q / 2), float(k)) for k in top), reverse=True)
+    coarse = sorted(zip(scores((top + 0.5) * coarse_q, coarse_q / 2), top.tolist(), strict=True), reverse=True)
     best_bins = [k for _, k in coarse[:3]]
     fine = np.unique(np.round(votes[np.isin(np.floor(votes / coarse_q), best_bins)], 3))
-    scored = sorted(((score(float(o)), float(o)) for o in fine), key=lambda t: (-t[0], t[1]))
+    scored = sorted(zip(scores(fine), fine.tolist(), strict=True), key=lambda t: (-t[0], t[1]))
     if not scored:
         return []
     # Among the best, keep the middle of each run of equal scores, and distinct ones only.

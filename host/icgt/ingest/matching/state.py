@@ -54,6 +54,7 @@ class Card:
     r: FloatArray  # interval length (the resolution) [s]
     timed: IntArray  # indices of images with a time, in card order
     has: list[bool]  # has[i]: image i has an EXIF time
+    untimed_prefix: list[int]  # untimed_prefix[i]: images without a time before image i
 
     @classmethod
     def of(cls, times: Sequence[ImageTime]) -> Card:
@@ -61,13 +62,29 @@ class Card:
         c = np.array([t.time_s if t.time_s is not None else np.nan for t in ts], dtype=np.float64)
         r = np.array([t.resolution_s if t.resolution_s is not None else np.nan for t in ts], dtype=np.float64)
         timed = np.flatnonzero(~(np.isnan(c) | np.isnan(r))).astype(np.int64)
-        return cls(ts, c, r, timed, [t.time_s is not None for t in ts])
+        has = [t.time_s is not None for t in ts]
+        untimed = np.concatenate([[0], np.cumsum(~np.array(has, dtype=bool))]).astype(np.int64)
+        return cls(ts, c, r, timed, has, untimed.tolist())
 
     def __len__(self) -> int:
         return len(self.times)
 
     def has_time(self, i: int) -> bool:
         return self.has[i]
+
+
+class Ranges:
+    """Per image the frame range (first, last) it may pair within, None where it has none; held as
+    arrays (-1: none) and read per image, with the images without one listed (ascending)."""
+
+    def __init__(self, lo: IntArray, hi: IntArray) -> None:
+        self._lo: list[int] = lo.tolist()
+        self._hi: list[int] = hi.tolist()
+        self.missing: list[int] = np.flatnonzero(lo < 0).tolist()
+
+    def __getitem__(self, i: int) -> tuple[int, int] | None:
+        a = self._lo[i]
+        return None if a < 0 else (a, self._hi[i])
 
 
 @dataclass

@@ -10,6 +10,7 @@ from typing import Any
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from icgt.errors import IcgtError
+from icgt.mavlink.frames import UndecodedBatch
 
 __all__ = [
     "DEFAULT_STREAM_RATES",
@@ -205,11 +206,17 @@ class LinkStats:
 class Subscription:
     """Handle returned by `MavlinkLink.subscribe`; pass it to `unsubscribe`."""
 
-    __slots__ = ("callback", "types")
+    __slots__ = ("callback", "types", "undecoded")
 
-    def __init__(self, callback: Callable[[MavlinkMessage], object], types: frozenset[str] | None) -> None:
+    def __init__(
+        self,
+        callback: Callable[[MavlinkMessage], object],
+        types: frozenset[str] | None,
+        undecoded: Callable[[UndecodedBatch], object] | None = None,
+    ) -> None:
         self.callback = callback
         self.types = types
+        self.undecoded = undecoded  # takes other systems' undecoded frames in batches instead of `callback`
 
 
 @dataclasses.dataclass(slots=True)

@@ -414,10 +414,10 @@ class MavlinkLink:
         a burst in the receive buffer) must not make every message look late, which a one-way clock from
         arrival times cannot tell from the autopilot's clock. pymavlink's mavudp reads with recvfrom and
         keeps no timestamp, so the socket is read here, with mavudp's own client bookkeeping (once per
-        sender per drain, at its first datagram). The kernel stamps on CLOCK_REALTIME: its offset to the host's monotonic clock is
-        read once per drain (a few ms at most), and a stamp is never later than its read time (a realtime
-        step would say so). Other systems' frames are collected over the drain and passed on as batches,
-        each ending where a decoded message comes in between (order kept)."""
+        sender per drain, at its first datagram). The kernel stamps on CLOCK_REALTIME: its offset to the
+        host's monotonic clock is read once per drain (a few ms at most), and a stamp is never later than
+        its read time (a realtime step would say so). Other systems' frames are collected over the drain and
+        passed on as batches, each ending where a decoded message comes in between (order kept)."""
         recvmsg = sock.recvmsg
         clock = self._clock
         unpack = _TIMESPEC.unpack_from

@@ -12,6 +12,7 @@ import pytest
 from mavlink_peers import AutopilotPeer, free_udp_port, wait_until
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from icgt.mavlink.frames import UndecodedBatch
 from icgt.mavlink.link import (
     DEFAULT_STREAM_RATES,
     LinkConfig,
@@ -430,3 +431,62 @@ def test_stop_joins_threads_and_closes_the_socket(recorder):
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     s.bind(("127.0.0.1", port))
     s.close()
+
+
+def test_other_systems_frames_come_in_order_in_batches_to_a_batch_subscriber(recorder):
+    """A burst of other systems' frames with the autopilot's in between, read in drains (read_batch_s): the
+    batch subscriber gets every foreign frame once, in order with the decoded messages, each with its own
+    arrival time, several per batch; a plain subscriber still gets one message per foreign frame."""
+    batch_s = 0.2
+    link, port = make_link(
+        recorder, request_rates=False, timesync=False, decode_systems=frozenset({1}), read_batch_s=batch_s
+    )
+    seen: list[tuple[str, int, int]] = []  # (who, time_boot_ms of the frame, rx_ns) as delivered
+    batches: list[UndecodedBatch] = []
+    lock = threading.Lock()
+
+    def on_batch(batch: UndecodedBatch) -> None:
+        with lock:
+            batches.append(batch)
+            for buf, sysid, _comp, _mid, rx in batch.frames:
+                seen.append(("foreign", int(mavlink2.MAVLink(None).decode(bytearray(buf)).time_boot_ms), rx))
+                assert sysid == 42
+
+    def on_message(rec: MavlinkMessage) -> None:
+        if rec.type == "ATTITUDE":
+            with lock:
+                seen.append(("autopilot", int(rec.msg.time_boot_ms), rec.rx_ns))
+
+    link.subscribe(on_message, undecoded=on_batch)
+    plain: list[MavlinkMessage] = []
+    link.subscribe(plain.append, ["ATTITUDE"])
+    link.start()
+    ap = AutopilotPeer(port)
+    stranger = AutopilotPeer(port, system=42, component=1)
+    try:
+        time.sleep(0.3)
+        sent: dict[int, int] = {}
+        for k in range(60):  # 5 foreign frames, then one of the autopilot's, ...
+            peer = ap if k % 6 == 5 else stranger
+            sent[k] = time.monotonic_ns()
+            peer.send(peer.mav.attitude_encode(k, 0, 0, 0, 0, 0, 0))
+            if k % 12 == 11:
+                time.sleep(0.05)
+        assert wait_until(lambda: len(seen) == 60 and len(plain) == 60)
+        with lock:
+            assert [k for _, k, _ in seen] == list(range(60))  # every frame once, in the order sent
+            assert [who for who, k, _ in seen] == ["autopilot" if k % 6 == 5 else "foreign" for k in range(60)]
+            lags = [rx - sent[k] for _, k, rx in seen]
+            assert max(lags) < batch_s * 1e9 / 2, "a stamp is the read time, not the arrival"
+            assert min(lags) > -1_000_000
+            assert sum(len(b) for b in batches) == 50 and len(batches) < 50
+        assert [r.src_system == 42 for r in plain] == [k % 6 != 5 for k in range(60)]
+        stats = link.stats()
+        assert stats.undecoded_frames == 50 and stats.messages_by_type["ATTITUDE"] == 60
+        assert stats.v2_frames >= 60 and stats.bytes_received >= 60 * len(
+            bytes(ap.mav.attitude_encode(0, 0, 0, 0, 0, 0, 0).pack(ap.mav))
+        )
+    finally:
+        stranger.close()
+        ap.close()
+        link.stop()

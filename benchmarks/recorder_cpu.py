@@ -265,6 +265,13 @@ def _export_baseline(rev: str, into: Path) -> Path:
     into.mkdir(parents=True, exist_ok=True)
     archive = subprocess.run(["git", "-C", str(repo), "archive", rev, "host"], check=True, capture_output=True)
     subprocess.run(["tar", "-x", "-C", str(into)], input=archive.stdout, check=True)
+    # The venv's editable install of this tree is a meta path finder, ahead of PYTHONPATH: without this the
+    # "baseline" would import this tree's icgt. site imports sitecustomize after the .pth files: drop it there.
+    (into / "host" / "sitecustomize.py").write_text(
+        "import sys\n\n"
+        "_EDITABLE = ('ScikitBuildInplaceFinder', 'ScikitBuildRedirectingFinder')\n"
+        "sys.meta_path[:] = [f for f in sys.meta_path if type(f).__name__ not in _EDITABLE]\n"
+    )
     return into / "host"
 
 

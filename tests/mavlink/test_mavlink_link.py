@@ -490,3 +490,48 @@ def test_other_systems_frames_come_in_order_in_batches_to_a_batch_subscriber(rec
         stranger.close()
         ap.close()
         link.stop()
+
+
+def test_datagrams_the_kernel_drops_are_counted(recorder):
+    """A reader held up with a small receive buffer: the kernel drops what does not fit, and the link counts
+    it (SO_RXQ_OVFL, told with the next datagram), so that what was received plus what was dropped is what
+    was sent."""
+    link, port = make_link(
+        recorder,
+        request_rates=False,
+        timesync=False,
+        decode_systems=frozenset({1}),
+        read_batch_s=0.02,
+        udp_receive_buffer_bytes=16_384,
+    )
+    held = threading.Event()
+    release = threading.Event()
+
+    def hold(rec: MavlinkMessage) -> None:
+        if rec.src_system == 1 and not held.is_set():
+            held.set()
+            release.wait(5.0)  # the reader is stuck here while the flood comes
+
+    link.subscribe(hold, ["ATTITUDE"])
+    link.start()
+    ap = AutopilotPeer(port)
+    stranger = AutopilotPeer(port, system=42, component=1)
+    n = 2000
+    try:
+        ap.send(ap.mav.attitude_encode(0, 0, 0, 0, 0, 0, 0))
+        assert wait_until(held.is_set)
+        for k in range(n):
+            stranger.send(stranger.mav.attitude_encode(k, 0, 0, 0, 0, 0, 0))
+        release.set()
+        assert wait_until(lambda: link.stats().undecoded_frames > 0)
+        # the count comes with the next datagram queued after the drops
+        stranger.send(stranger.mav.attitude_encode(n, 0, 0, 0, 0, 0, 0))
+        ok = wait_until(lambda: link.stats().undecoded_frames + link.stats().kernel_drops == n + 1, timeout=5.0)
+        assert ok, link.stats()
+        stats = link.stats()
+        assert 0 < stats.kernel_drops < n, stats
+    finally:
+        release.set()
+        stranger.close()
+        ap.close()
+        link.stop()

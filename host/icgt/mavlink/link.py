@@ -81,8 +81,12 @@ log = logging.getLogger(__name__)
 # of the datagram's arrival on CLOCK_REALTIME in the ancillary data of recvmsg.
 _SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 _SCM_TIMESTAMPNS = _SO_TIMESTAMPNS
-_TIMESPEC_CMSG_SPACE = socket.CMSG_SPACE(16)
+# SO_RXQ_OVFL: a datagram read after the kernel dropped some (receive buffer full) carries the socket's count of
+# drops so far (a u32) in its ancillary data.
+_SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
+_CMSG_SPACE = socket.CMSG_SPACE(16) + socket.CMSG_SPACE(4)
 _TIMESPEC = struct.Struct("qq")  # struct timespec: tv_sec, tv_nsec
+_U32 = struct.Struct("I")
 _DRAIN_MAX = 1024  # datagrams read per wake-up, at most
 
 
@@ -147,6 +151,8 @@ class MavlinkLink:
         self._undecoded = 0
         self.receive_buffer_bytes = 0  # the UDP socket's receive buffer once open [bytes]
         self._kernel_stamps = False  # SO_TIMESTAMPNS on (Linux): datagrams carry their arrival time
+        self._kernel_drops = 0  # datagrams the kernel dropped (receive buffer full), all sockets so far
+        self._socket_drops = 0  # ... of which the current socket's
         self._outages = 0
         self._transport_errors = 0
         # timesync requests
@@ -187,6 +193,9 @@ class MavlinkLink:
             try:
                 sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
                 self._kernel_stamps = True
+                with contextlib.suppress(OSError):  # drops counted if the kernel can say so
+                    sock.setsockopt(socket.SOL_SOCKET, _SO_RXQ_OVFL, 1)
+                self._socket_drops = 0  # a new socket counts from 0
             except OSError as exc:
                 log.warning("no kernel receive timestamps on the MAVLink socket (%s): arrival = read time", exc)
         if got < want:
@@ -334,6 +343,7 @@ class MavlinkLink:
                 undecoded_frames=self._undecoded,
                 outages=self._outages,
                 transport_errors=self._transport_errors,
+                kernel_drops=self._kernel_drops,
             )
 
     # ------------------------------------------------------------------ reader thread
@@ -362,7 +372,8 @@ class MavlinkLink:
         if self._datagram:
             sock = getattr(conn, "port", None)
             if self._kernel_stamps and isinstance(sock, socket.socket):
-                self._drain_stamped(conn, sock)
+                if self._drain_stamped(conn, sock) >= _DRAIN_MAX:
+                    return  # a backlog (the reader was held up): read on without the pause
             else:
                 for _ in range(_DRAIN_MAX):  # drain the socket, stamping each datagram as it is read
                     got = self._recv_datagram(conn)
@@ -406,8 +417,8 @@ class MavlinkLink:
         rx_ns = self._clock()
         return (bytes(data), rx_ns) if data else None
 
-    def _drain_stamped(self, conn: Any, sock: socket.socket) -> None:
-        """Read every waiting datagram (up to _DRAIN_MAX) with its arrival time from the kernel.
+    def _drain_stamped(self, conn: Any, sock: socket.socket) -> int:
+        """Read every waiting datagram (up to _DRAIN_MAX) with its arrival time from the kernel; how many.
 
         With the kernel's receive timestamp (SO_TIMESTAMPNS) the arrival time is when the datagram reached
         the socket, not when this thread got round to reading it: a reader that is late (a loaded computer,
@@ -427,10 +438,12 @@ class MavlinkLink:
         offset_ns = time.time_ns() - time.monotonic_ns()
         foreign: list[ForeignFrame] = []
         senders: set[Any] = set()
+        drops = self._socket_drops
+        read = 0
         try:
             for _ in range(_DRAIN_MAX):
                 try:
-                    data, ancdata, _flags, addr = recvmsg(65535, _TIMESPEC_CMSG_SPACE)
+                    data, ancdata, _flags, addr = recvmsg(65535, _CMSG_SPACE)
                 except (BlockingIOError, InterruptedError):
                     break
                 except OSError as exc:
@@ -439,9 +452,16 @@ class MavlinkLink:
                     raise
                 rx_ns = clock()
                 for level, kind, payload in ancdata:
-                    if kind == _SCM_TIMESTAMPNS and level == socket.SOL_SOCKET and len(payload) >= 16:
+                    if level != socket.SOL_SOCKET:
+                        continue
+                    if kind == _SCM_TIMESTAMPNS and len(payload) >= 16:
                         sec, nsec = unpack(payload)
-                        rx_ns = min(rx_ns, sec * 1_000_000_000 + nsec - offset_ns)
+                        stamped = sec * 1_000_000_000 + nsec - offset_ns
+                        if stamped < rx_ns:
+                            rx_ns = stamped
+                    elif kind == _SO_RXQ_OVFL and len(payload) >= 4:
+                        drops = _U32.unpack_from(payload)[0]
+                read += 1
                 if addr not in senders:  # before its frames are handled: an answer to them goes back to it
                     senders.add(addr)
                     self._note_sender(conn, addr)
@@ -461,6 +481,24 @@ class MavlinkLink:
         finally:
             if foreign:
                 self._pass_on_foreign(foreign)
+            if drops != self._socket_drops:
+                self._count_kernel_drops(drops)
+        return read
+
+    def _count_kernel_drops(self, socket_drops: int) -> None:
+        """The socket's count of datagrams dropped by the kernel went up: counted (stats) and said."""
+        new = (socket_drops - self._socket_drops) % (1 << 32)  # a u32 that may wrap
+        self._socket_drops = socket_drops
+        with self._lock:
+            self._kernel_drops += new
+            total = self._kernel_drops
+        log.warning(
+            "the kernel dropped %d MAVLink datagrams (%d so far): the UDP receive buffer (%d bytes) was full; "
+            "the recorder did not read fast enough",
+            new,
+            total,
+            self.receive_buffer_bytes,
+        )
 
     @staticmethod
     def _note_sender(conn: Any, addr: Any) -> None:

@@ -197,6 +197,8 @@ class LinkStats:
     undecoded_frames: int
     outages: int
     transport_errors: int
+    # UDP datagrams the kernel dropped because the socket's receive buffer was full (SO_RXQ_OVFL, Linux)
+    kernel_drops: int = 0
     # with a signing key only: frames received with a valid signature, an invalid one, none
     signed_ok: int = 0
     signed_bad: int = 0

@@ -45,6 +45,7 @@ from icgt.protocol.messages import (
     Board,
     ErrorCode,
     Hello,
+    HostReceived,
     Message,
     Ping,
     Resend,
@@ -613,6 +614,31 @@ def test_batched_reads_take_a_stream_in_few_reads_and_stamp_replies_promptly(hos
             streamer.join()
     for s in host.syncs:
         assert s.round_trip_ns < batch_s * 1e9 / 2, f"round trip {s.round_trip_ns / 1e6:.1f} ms: stamped late"
+
+
+def test_messages_without_an_answer_leave_the_reader_batching(host, device):
+    """HOST_RECEIVED (once a second, from 3 s on) expects no answer: sending it must not make the reader
+    prompt (it did, for 100 ms each time: one read per frame of the stream)."""
+    batch_s = 0.2
+    stop = threading.Event()
+
+    def stream() -> None:
+        while not stop.wait(0.002):
+            device.send(Status(t_us=device.now_us()))
+
+    with started(host, device, batch_s=batch_s) as link:
+        streamer = threading.Thread(target=stream, daemon=True)
+        streamer.start()
+        try:
+            time.sleep(4.2)  # HOST_RECEIVED is sent from ~3 s on, once a second
+            reads0 = link.reads
+            time.sleep(2.0)
+            reads = link.reads - reads0
+        finally:
+            stop.set()
+            streamer.join()
+        assert device.received_of(HostReceived), "no HOST_RECEIVED sent"
+    assert reads <= 2.0 / batch_s + 3, f"{reads} reads in 2 s with {batch_s} s pauses and HOST_RECEIVED sent"
 
 
 # --------------------------------------------------------------------------- unplug / replug

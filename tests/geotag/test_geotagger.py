@@ -16,6 +16,7 @@ checked by where they send the body and camera axes, worked out by hand.
 from __future__ import annotations
 
 import math
+import random
 
 import numpy as np
 import pytest
@@ -571,6 +572,36 @@ def test_invalid_range_samples_are_skipped_in_the_interpolation():
     rig.gt.add_range(range_sample(MID_US + 10_000, 1_200))
     rig.expose()
     assert rig.one().range_m == pytest.approx(11.0)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_range_at_mid_is_the_nearest_valid_pair(seed):
+    """Random streams (valid and invalid returns, one exactly at mid sometimes): the range is interpolated
+    between the last valid acquisition at or before mid and the first at or after it, within 50 ms."""
+    rng = random.Random(seed)
+    rig = Rig()
+    fix_then_bracket(rig)
+    t, samples = MID_US - 80_000, []
+    at_mid = rng.random() < 0.3
+    while t < MID_US + 80_000:
+        step = rng.choice([2_000, 2_000, 2_000, 7_000, 23_000])
+        t = MID_US if at_mid and t < MID_US < t + step else t + step
+        samples.append(range_sample(t, rng.randint(100, 3_000), valid=rng.random() < 0.4))
+        rig.gt.add_range(samples[-1])
+    rig.expose()
+    f = rig.one()
+    near = [s for s in samples if abs(s.acq_start_t_us - MID_US) <= 50_000 and s.flags & int(RangeFlags.VALID)]
+    before = [s for s in near if s.acq_start_t_us <= MID_US]
+    after = [s for s in near if s.acq_start_t_us >= MID_US]
+    if not before and not after:
+        assert FrameFlag.RANGE_INVALID.value in f.flags and f.range_m is None
+    elif before and after:
+        a, b = before[-1], after[0]
+        w = 0.0 if a is b else (MID_US - a.acq_start_t_us) / (b.acq_start_t_us - a.acq_start_t_us)
+        assert f.range_m == pytest.approx((a.distance_cm + (b.distance_cm - a.distance_cm) * w) / 100.0)
+    else:
+        (only,) = before[-1:] or after[:1]
+        assert f.range_m == pytest.approx(only.distance_cm / 100.0)
 
 
 @pytest.mark.parametrize(

@@ -193,3 +193,38 @@ def test_compressions_all_read_back(tmp_path: Path) -> None:
         assert len(read_complete(path).messages) == 20
     with pytest.raises(RecordingError, match="unknown chunk compression"):
         McapRecorder(tmp_path / "bad.mcap", compression="brotli")  # type: ignore[arg-type]
+
+
+def test_write_many_queues_in_order_with_one_log_time(tmp_path: Path) -> None:
+    """A worker's step handed over at once: every message, in order, with its own publish time and the
+    time it was queued as log time; sinks see the same; an unregistered topic is refused whole."""
+    from mcap.reader import make_reader
+
+    seen: list[tuple[str, bytes, int, int]] = []
+
+    class Sink:
+        def add_channel(self, *args: object) -> None:
+            pass
+
+        def message(self, topic: str, data: bytes, log_time: int, publish_time: int) -> None:
+            seen.append((topic, data, log_time, publish_time))
+
+    path = tmp_path / "many.mcap"
+    clock = iter(range(T0, T0 + 10**9, 1000))
+    with McapRecorder(path, clock=lambda: next(clock), sinks=(Sink(),)) as rec:  # type: ignore[arg-type]
+        rec.register_json("/a", "a", {"type": "object"})
+        rec.register_json("/b", "b", {"type": "object"})
+        batch = [(("/a", "/b")[i % 2], rec.encode("/a", {"i": i}), T0 - 10**6 + i) for i in range(100)]
+        rec.write_many(batch)
+        rec.write("/a", {"i": 100}, publish_time_ns=T0)
+        with pytest.raises(RecordingError, match="register it"):
+            rec.write_many([("/a", b"{}", T0), ("/nope", b"{}", T0)])
+    with path.open("rb") as f:
+        back = [
+            (c.topic, json.loads(m.data)["i"], m.log_time, m.publish_time) for _, c, m in make_reader(f).iter_messages()
+        ]
+    assert [b[1] for b in back] == list(range(101))
+    assert [b[0] for b in back[:100]] == [("/a", "/b")[i % 2] for i in range(100)]
+    assert {b[2] for b in back[:100]} == {back[0][2]} and back[100][2] > back[0][2]
+    assert [b[3] for b in back[:100]] == [T0 - 10**6 + i for i in range(100)]
+    assert [(t, lt, pt) for t, _, lt, pt in seen] == [(t, lt, pt) for t, _, lt, pt in back]

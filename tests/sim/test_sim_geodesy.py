@@ -104,3 +104,26 @@ def test_body_rates_from_quaternion_derivative() -> None:
     rates = g.body_rates_from_quaternions(q, (q_at(1.0 + h) - q_at(1.0 - h)) / (2 * h))
     expected = g.q_rotate(g.q_conjugate(q), [0.0, 0.0, 0.5])  # world z rate in body axes
     assert rates == pytest.approx(expected, abs=1e-8)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_one_vector_paths_equal_the_array_paths(seed: int) -> None:
+    """The `math` paths for one vector (the geotagger's) give what the numpy paths give for a batch of one."""
+    rng = np.random.default_rng(seed)
+    lat, lon, h = float(rng.uniform(-80, 80)), float(rng.uniform(-180, 180)), float(rng.uniform(-100, 3000))
+    frame = g.LocalFrame(lat + 0.01, lon - 0.01, h + 5.0)
+    q0, q1 = rng.normal(size=4), rng.normal(size=4)
+    v, t = rng.normal(size=3) * 10.0, float(rng.uniform(0, 1))
+    ecef = g.geodetic_to_ecef(lat, lon, h)
+    assert np.allclose(ecef, g.geodetic_to_ecef([lat], [lon], [h])[0], rtol=0, atol=1e-8)
+    assert np.allclose(g.ecef_to_geodetic(ecef), [x[0] for x in g.ecef_to_geodetic(ecef[None, :])], rtol=0, atol=1e-9)
+    enu = frame.geodetic_to_enu(lat, lon, h)
+    assert np.allclose(enu, frame.ecef_to_enu(ecef[None, :])[0], rtol=0, atol=1e-8)
+    assert np.allclose(frame.enu_to_ecef(tuple(enu)), frame.enu_to_ecef(enu[None, :])[0], rtol=0, atol=1e-8)
+    assert np.allclose(g.q_normalize(q0), g.q_normalize(q0[None, :])[0], atol=1e-15)
+    assert np.allclose(g.q_multiply(q0, q1), g.q_multiply(q0[None, :], q1[None, :])[0], atol=1e-12)
+    qn = g.q_normalize(q0)
+    assert np.allclose(g.q_rotate(qn, v), g.q_rotate(qn[None, :], v[None, :])[0], atol=1e-12)
+    assert np.allclose(g.q_slerp(q0, q1, t), g.q_slerp(q0[None, :], q1[None, :], np.array([t]))[0], atol=1e-12)
+    near = qn + 1e-12  # the small-angle branch
+    assert np.allclose(g.q_slerp(qn, near, t), g.q_slerp(qn[None, :], near[None, :], np.array([t]))[0], atol=1e-12)

@@ -42,7 +42,8 @@ Uncertainty (a worst-case bound, not a sigma)
 Every line that violates no exchange's constraint is a possible truth. The reported
 ``uncertainty_ns`` at a device time is the largest distance from the estimate to any such line
 there whose slope is also within 4 standard errors of the estimated drift (a small LP over the
-same hulls), plus the 1 us stamp resolution, plus an allowance for the crystal's frequency wander
+same hulls, solved exactly: the extreme line at a point rests on the hull edge over that point,
+see ``bound_ns``), plus the 1 us stamp resolution, plus an allowance for the crystal's frequency wander
 (``wander_ppm``) for queries outside the window (extrapolation across an unplug grows linearly).
 It holds whatever the path asymmetry is, provided the clock is linear over the window; so it
 includes the constant asymmetry of the two paths' floors that no two-way method can observe
@@ -57,10 +58,12 @@ frequency changed too much), the oldest samples are dropped until it can.
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from enum import Enum
+from itertools import pairwise
 
 from icgt.errors import IcgtError
 
@@ -72,9 +75,7 @@ __all__ = [
     "ResetReason",
 ]
 
-_GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 _REORDER_US = 100_000.0  # a remote clock that went back by less than this is a reordered reply, not a reboot
-_SLOPE_ITERATIONS = 80  # golden-section steps: 2e-3 * 0.618**80 ~ 4e-20, far below double rounding
 
 
 class ClockError(IcgtError):
@@ -151,6 +152,19 @@ class _Sample:
 
 
 @dataclass(frozen=True, slots=True)
+class _Hull:
+    """A convex hull's vertices (x, u) sorted by x, their x, and the slopes of the edges between them."""
+
+    points: tuple[tuple[float, float], ...]
+    xs: tuple[float, ...]
+    slopes: tuple[float, ...]
+
+    @classmethod
+    def of(cls, points: tuple[tuple[float, float], ...]) -> _Hull:
+        return cls(points, tuple(p[0] for p in points), tuple(_edge_slopes(points)))
+
+
+@dataclass(frozen=True, slots=True)
 class _Fit:
     ref_x: float  # remote clock [us] of the reference (newest sample's receive stamp)
     ref_host_ns: int  # host stamp the relative coordinates are measured from
@@ -160,8 +174,8 @@ class _Fit:
     s_hi: float
     b_lo: float  # slopes the uncertainty bound considers (feasible and statistically plausible)
     b_hi: float
-    hull_a: tuple[tuple[float, float], ...]  # upper hull of request points (x, u): lines pass above
-    hull_b: tuple[tuple[float, float], ...]  # lower hull of reply points: lines pass below
+    hull_a: _Hull  # upper hull of request points (x, u): lines pass above
+    hull_b: _Hull  # lower hull of reply points: lines pass below
     x_min: float
     x_max: float
     n: int
@@ -245,37 +259,83 @@ def _bucket_slope(
     return num / den, math.sqrt(1.0 / den)
 
 
-def _golden_max(f: Callable[[float], float], lo: float, hi: float) -> float:
-    """Argmax of a concave function on [lo, hi] (ties keep a maximiser inside the bracket)."""
-    if hi - lo <= 0.0:
+def _edge_slopes(hull: Sequence[tuple[float, float]]) -> list[float]:
+    """Slopes of the edges of a hull given as vertices sorted by x (a vertical edge: +-inf)."""
+    return [
+        (u1 - u0) / (x1 - x0) if x1 > x0 else math.copysign(math.inf, u1 - u0) for (x0, u0), (x1, u1) in pairwise(hull)
+    ]
+
+
+def _concave_argmax(f: Callable[[float], float], knots: Sequence[float], lo: float, hi: float) -> float:
+    """Exact argmax on [lo, hi] of a concave function that is linear between sorted ``knots``.
+
+    The maximum of such a function is at a knot or an end of the interval, and along the sorted
+    candidates the values rise, then fall: a binary search on the sign of the step finds it with
+    O(log n) evaluations (a golden-section search needs ~80 for double precision). Where the top is
+    flat (a plateau: the supporting points of both sides share one x, as with TIMESYNC's single
+    remote stamp), the middle of the plateau is returned, so the choice does not lean to one end.
+    """
+    if hi <= lo:
         return lo
-    c = hi - _GOLDEN * (hi - lo)
-    d = lo + _GOLDEN * (hi - lo)
-    fc, fd = f(c), f(d)
-    for _ in range(_SLOPE_ITERATIONS):
-        if fc < fd:
-            lo, c, fc = c, d, fd
-            d = lo + _GOLDEN * (hi - lo)
-            fd = f(d)
+    cand = [lo, *(k for k in knots if lo < k < hi), hi]
+    vals: dict[int, float] = {}
+
+    def val(i: int) -> float:
+        v = vals.get(i)
+        if v is None:
+            v = vals[i] = f(cand[i])
+        return v
+
+    a, b = 0, len(cand) - 1  # first index whose next step does not rise, in [a, b]
+    while a < b:
+        m = (a + b) // 2
+        if val(m + 1) > val(m):
+            a = m + 1
         else:
-            hi, d, fd = d, c, fc
-            c = hi - _GOLDEN * (hi - lo)
-            fc = f(c)
-        if hi - lo < 1e-18:
-            break
-    best = max((lo, f(lo)), (hi, f(hi)), (c, fc), (d, fd), key=lambda t: t[1])
-    return best[0]
+            b = m
+    top = val(a)
+    last = a  # a plateau: equal values to the right of the first maximiser
+    while last + 1 < len(cand) and val(last + 1) >= top:
+        last += 1
+    return cand[a] if last == a else 0.5 * (cand[a] + cand[last])
 
 
-def _bisect_edge(ok: Callable[[float], bool], inside: float, outside: float) -> float:
-    """Last point from ``inside`` towards ``outside`` where ``ok`` still holds (ok is an interval)."""
-    for _ in range(70):
-        mid = 0.5 * (inside + outside)
-        if ok(mid):
-            inside = mid
+def _level_crossing(
+    f: Callable[[float], float], knots: Sequence[float], inside: float, outside: float, level: float
+) -> float:
+    """The point between ``inside`` (f >= level) and ``outside`` (f < level) where the piecewise-linear
+    concave ``f`` (linear between ``knots``) falls to ``level``: exact, by a binary search over the
+    knots in between and one linear interpolation (a bisection needs ~70 evaluations)."""
+    lo, hi = min(inside, outside), max(inside, outside)
+    pts = [inside, *sorted((k for k in knots if lo < k < hi), reverse=outside < inside), outside]
+    a, b = 0, len(pts) - 1  # f(pts[a]) >= level > f(pts[b])
+    fa, fb = f(pts[a]), f(pts[b])
+    while b - a > 1:
+        m = (a + b) // 2
+        fm = f(pts[m])
+        if fm >= level:
+            a, fa = m, fm
         else:
-            outside = mid
-    return inside
+            b, fb = m, fm
+    if fa == fb:
+        return pts[a]
+    t = (fa - level) / (fa - fb)
+    step = t * (pts[b] - pts[a])
+    for shrink in (1.0, 1.0 - 2.0**-40, 1.0 - 2.0**-30, 1.0 - 2.0**-20, 1.0 - 2.0**-10):
+        x = pts[a] + shrink * step
+        if f(x) >= level:  # rounding may put the interpolated point a hair past the edge: step back
+            return x
+    return pts[a]
+
+
+def _support_slope(hull: _Hull, x: float, before: float, after: float) -> float:
+    """Slope of the hull edge over ``x`` (``before``/``after`` left of the first or right of the last vertex)."""
+    i = bisect_right(hull.xs, x)
+    if i == 0:
+        return before
+    if i >= len(hull.xs):
+        return after
+    return hull.slopes[i - 1]
 
 
 _REFIT_LAZY_AFTER = 64  # exchanges in the window before refits may be spaced out (refit_interval_ns)
@@ -452,6 +512,10 @@ class _TwoWayLine:
             min_rtt = min(min_rtt, (smp.host_rx_ns - smp.host_tx_ns) - (smp.tx - smp.rx) * 1000.0)
         hull_a = _upper_hull(pts_a)
         hull_b = _lower_hull(pts_b)
+        hulls = (_Hull.of(hull_a), _Hull.of(hull_b))
+        # margin(s) is concave and linear between the hulls' edge slopes (where either side's supporting
+        # point changes): its maximum and its level crossings are found exactly among them.
+        knots = sorted(hulls[0].slopes + hulls[1].slopes)
         x_min = min(hull_a[0][0], hull_b[0][0])
         x_max = max(hull_a[-1][0], hull_b[-1][0])
         slack = 2000.0 * self._half_res
@@ -471,18 +535,15 @@ class _TwoWayLine:
             # Short span after a reset: the drift measured before it bounds the slope (same crystal).
             lo = max(lo, self._prior_s - self._prior_unc)
             hi = min(hi, self._prior_s + self._prior_unc)
-        s_best = _golden_max(margin, lo, hi)
+        s_best = _concave_argmax(margin, knots, lo, hi)
         if margin(s_best) < -slack and (lo, hi) != (-self._s_max, self._s_max):
             lo, hi = -self._s_max, self._s_max  # the prior is wrong (temperature moved): let the data speak
-            s_best = _golden_max(margin, lo, hi)
+            s_best = _concave_argmax(margin, knots, lo, hi)
         if margin(s_best) < -slack:
-            return _Fit(ref_x, ref_h, 0.0, s_best, 1.0, -1.0, 1.0, -1.0, hull_a, hull_b, x_min, x_max, 0, 0, 0)
+            return _Fit(ref_x, ref_h, 0.0, s_best, 1.0, -1.0, 1.0, -1.0, *hulls, x_min, x_max, 0, 0, 0)
 
-        def feasible(s: float) -> bool:
-            return margin(s) >= -slack
-
-        s_lo = lo if feasible(lo) else _bisect_edge(feasible, s_best, lo)
-        s_hi = hi if feasible(hi) else _bisect_edge(feasible, s_best, hi)
+        s_lo = lo if margin(lo) >= -slack else _level_crossing(margin, knots, s_best, lo, -slack)
+        s_hi = hi if margin(hi) >= -slack else _level_crossing(margin, knots, s_best, hi, -slack)
         b_lo, b_hi = s_lo, s_hi
         if span_ok:
             s_bucket, sigma = _bucket_slope(pts_a, pts_b, 0.5 * (lower(s_best) + upper(s_best)), s_best)
@@ -503,8 +564,7 @@ class _TwoWayLine:
             s_hi,
             b_lo,
             b_hi,
-            hull_a,
-            hull_b,
+            *hulls,
             x_min,
             x_max,
             len(self._samples),
@@ -536,15 +596,17 @@ class _TwoWayLine:
         x = (float(remote_us) - fit.ref_x) * 1000.0
         est = fit.a + fit.s * x
 
-        def top(s: float) -> float:  # highest consistent line of slope s, at x
-            return min(u + s * (x - xb) for xb, u in fit.hull_b)
-
-        def bottom(s: float) -> float:
-            return max(u + s * (x - xa) for xa, u in fit.hull_a)
-
-        s_top = _golden_max(top, fit.b_lo, fit.b_hi)
-        s_bot = _golden_max(lambda s: -bottom(s), fit.b_lo, fit.b_hi)
-        spread = max(top(s_top) - est, est - bottom(s_bot), 0.0)
+        # The highest line below every reply point, at x, is concave in its slope s and its derivative is
+        # x minus the x of the supporting hull vertex: the best slope is that of the lower hull's edge over
+        # x (-inf left of the hull, +inf right of it), clipped to [b_lo, b_hi] (a concave function of one
+        # variable peaks on an interval at its unconstrained peak, clipped). Likewise the lowest line above
+        # every request point, with the upper hull's edge (whose slopes fall with x). Exact, and O(hull).
+        inf = math.inf
+        s_top = min(max(_support_slope(fit.hull_b, x, -inf, inf), fit.b_lo), fit.b_hi)
+        s_bot = min(max(_support_slope(fit.hull_a, x, inf, -inf), fit.b_lo), fit.b_hi)
+        top = min(u + s_top * (x - xb) for xb, u in fit.hull_b.points)  # highest consistent line of slope s_top, at x
+        bottom = max(u + s_bot * (x - xa) for xa, u in fit.hull_a.points)
+        spread = max(top - est, est - bottom, 0.0)
         outside = max(x - fit.x_max, fit.x_min - x, 0.0)
         return spread + 2000.0 * self._half_res + abs(0.5 * self._asym) + self._wander * outside
 

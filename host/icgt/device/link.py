@@ -50,7 +50,7 @@ HOST_RECEIVED_PERIOD_NS = 1_000_000_000
 # two files, never a loss).
 HOST_RECEIVED_LAG_NS = 3_000_000_000
 PROMPT_WINDOW_NS = 100_000_000
-"""After each send, the reader reads as soon as bytes arrive for this long [ns] (the reply's stamp)."""
+"""After each send that awaits an answer, the reader reads as soon as bytes arrive for this long [ns] (its stamp)."""
 CATCH_UP_TIMEOUT_S = 0.02
 """How long a TIME_SYNC request waits for a batching reader to take what it held back [s]."""
 
@@ -236,8 +236,10 @@ class DeviceLink:
             if pending is not None:
                 self._pending[seq] = pending
             frame = encode_frame(message, seq)
-            if self._batch_s > 0.0:
-                # Whatever this is, its answer (an ACK, a TIME_SYNC_REPLY) must be stamped when it arrives.
+            if self._batch_s > 0.0 and (pending is not None or isinstance(message, TimeSync | Ping)):
+                # Its answer (an ACK, a TIME_SYNC_REPLY, a HELLO) must be stamped when it arrives. A
+                # HOST_RECEIVED has none, and RESEND's retransmitted frames carry device time: those
+                # leave the reader batching (each kept it prompt for 100 ms, one read per USB frame).
                 self._prompt_until_ns = time.monotonic_ns() + PROMPT_WINDOW_NS
                 self._prompt.set()
             if isinstance(message, TimeSync):
@@ -397,7 +399,7 @@ class DeviceLink:
         device sent meanwhile (it delivers every USB frame, 1 ms or less apart: one wake-up, one read and
         one decoder call each cost more than their messages). The stamp of a message that arrived during
         the pause is late by up to `batch_s`; what the clocks use is not: a TIME_SYNC reply comes while
-        reads are prompt (send() ends any pause and keeps reads prompt for PROMPT_WINDOW_NS), and the
+        reads are prompt (a send awaiting an answer ends any pause and keeps reads prompt for PROMPT_WINDOW_NS), and the
         device's own messages carry device time. A late stamp only makes their host_rx_ns later."""
         if now_ns < self._prompt_until_ns:
             return

@@ -21,6 +21,7 @@ import sys
 import threading
 import time
 from collections import deque
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -159,6 +160,10 @@ class Recorder:
         self._stop = threading.Event()
         self._worker: threading.Thread | None = None
         self._worker_lock = threading.Lock()  # the worker's step, and stop()'s final drain
+        # What the worker writes in one step, handed to the log at once (McapRecorder.write_many); None
+        # outside a step. Only the thread that opened it (_batch_owner) adds to it.
+        self._batch: list[tuple[str, bytes, int]] | None = None
+        self._batch_owner = 0
         self._log_handler: McapLogHandler | None = None
         self._registered: set[str] = set()
         self._next_sync_ns = 0
@@ -324,7 +329,7 @@ class Recorder:
         time.sleep(0.3)  # the last exposures' feedback and telemetry are still on their way
         if self._worker is not None and self._worker is not threading.current_thread():
             self._worker.join(timeout=3.0)
-        with self._worker_lock:
+        with self._step():
             self._drain(limit=None)
             self._emit(self.sync.poll(time.monotonic_ns(), flush=True))
         self._stop_control()
@@ -334,7 +339,7 @@ class Recorder:
             self.mavlink.stop()
         if self.device is not None:
             self.device.stop()
-        with self._worker_lock:
+        with self._step():
             self._drain(limit=None)  # what arrived while the links closed is still logged
             self._emit(self.sync.poll(time.monotonic_ns(), flush=True))
             self._write_counters(time.monotonic_ns())
@@ -388,9 +393,45 @@ class Recorder:
         if self.mcap is None:
             return
         try:
-            self.mcap.write(topic, message, publish_time_ns=self._log_time(host_ns))
+            batch = self._batch
+            if batch is not None and self._batch_owner == threading.get_ident():
+                batch.append((topic, self.mcap.encode(topic, message), self._log_time(host_ns)))
+            else:
+                self.mcap.write(topic, message, publish_time_ns=self._log_time(host_ns))
         except RecordingError as exc:
             self._fatal(exc)
+
+    def _write_encoded(self, topic: str, data: bytes, host_ns: int) -> None:
+        if self.mcap is None:
+            return
+        batch = self._batch
+        if batch is not None and self._batch_owner == threading.get_ident():
+            batch.append((topic, data, self._log_time(host_ns)))
+            return
+        try:
+            self.mcap.write_encoded(topic, data, publish_time_ns=self._log_time(host_ns))
+        except RecordingError as exc:
+            self._fatal(exc)
+
+    @contextlib.contextmanager
+    def _step(self) -> Iterator[None]:
+        """One worker step (or stop()'s last drains): under the worker lock, its writes handed over at its end."""
+        with self._worker_lock:
+            self._batch, self._batch_owner = [], threading.get_ident()
+            try:
+                yield
+            finally:
+                self._commit_writes()
+                self._batch = None
+
+    def _commit_writes(self) -> None:
+        batch = self._batch
+        if batch and self.mcap is not None:
+            self._batch = []
+            try:
+                self.mcap.write_many(batch)
+            except RecordingError as exc:
+                self._fatal(exc)
 
     def _fatal(self, exc: IcgtError) -> None:
         if self.failure is None:
@@ -457,10 +498,7 @@ class Recorder:
         msg = received.message
         if self.mcap is not None:
             data = topics.device_payload_json(msg, received.seq, received.flags, host_rx_ns)
-            try:
-                self.mcap.write_encoded(topics.device_topic(msg.NAME), data, publish_time_ns=self._log_time(host_rx_ns))
-            except RecordingError as exc:
-                self._fatal(exc)
+            self._write_encoded(topics.device_topic(msg.NAME), data, host_rx_ns)
         self.sync.on_device(msg, host_rx_ns)
         if msg.NAME == "EXPOSURE":
             self.exposures += 1
@@ -637,7 +675,7 @@ class Recorder:
     def _work(self) -> None:
         while not self._stop.wait(self._work_wait_s()):
             try:
-                with self._worker_lock:
+                with self._step():
                     self._drain(limit=_DRAIN_MAX)
                     self._work_once(time.monotonic_ns())
             except Exception:  # the worker must outlive any bug: frames keep being emitted
@@ -692,6 +730,7 @@ class Recorder:
                 "pending_frames": sync.pending_frames,
                 "sync": sync.counters(),
             }
+        self._commit_writes()  # before the TIME_SYNC, whose send waits for the device reader
         if self.device is not None and self.device.connected and now >= self._next_sync_ns:
             # Last, so that the worker sleeps while the reply comes back: the device reader stamps it as soon
             # as it has the GIL, which a worker building frames or records would hold for milliseconds.

@@ -35,7 +35,7 @@ import struct
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import count
 from pathlib import Path
@@ -283,16 +283,55 @@ class McapRecorder:
         data (its receipt, its mid-exposure), same epoch; defaults to the log time. Raises
         RecordingError after a write error, after close(), or for a message that does not fit its topic.
         """
+        entry, data = self._encode(topic, message)
+        self._write_data(topic, entry, data, log_time_ns, publish_time_ns)
+
+    def encode(self, topic: str, message: Any) -> bytes:
+        """`message` encoded as `topic` records it (registering a protobuf or dataclass topic on first use),
+        for `write_many`; raises RecordingError as `write` does."""
+        return self._encode(topic, message)[1]
+
+    def _encode(self, topic: str, message: Any) -> tuple[_Topic, bytes]:
         entry = self._topics.get(topic)
         if entry is None:
             entry = self._auto_register(topic, message)
         elif entry.kind is not None and type(message) is not entry.kind:
             raise RecordingError(f"topic {topic} records {entry.kind.__name__}, not {type(message).__name__}")
         try:
-            data = entry.encode(message)
+            return entry, entry.encode(message)
         except (TypeError, ValueError) as exc:
             raise RecordingError(f"cannot encode a message for {topic}: {exc}") from exc
-        self._write_data(topic, entry, data, log_time_ns, publish_time_ns)
+
+    def write_many(self, messages: Sequence[tuple[str, bytes, int]]) -> None:
+        """Encoded messages (topic, data, publish time [ns since the Unix epoch]) queued together, in order,
+        with one log time: the `clock` when queued. What a recorder's worker wrote in one step goes here at
+        its end: one lock, one clock reading and one hand-off instead of one each per message (about half
+        of the cost of a small message). Topics must be registered; raises RecordingError as `write` does.
+        """
+        if not messages:
+            return
+        topics = self._topics
+        entries = []
+        for topic, _, _ in messages:
+            entry = topics.get(topic)
+            if entry is None:
+                raise RecordingError(f"topic {topic}: register it before writing encoded messages")
+            entries.append(entry)
+        stamped: list[int] = []
+
+        def make() -> list[_Item]:
+            now = self._clock()
+            stamped.append(now)
+            return [
+                self._message_item(entry, now, publish, data)
+                for entry, (_, data, publish) in zip(entries, messages, strict=True)
+            ]
+
+        self._enqueue(make, len(messages))
+        log_time = stamped[-1] if stamped else self._clock()
+        for sink in self._sinks:
+            for topic, data, publish in messages:
+                _feed_sink(sink.message, topic, data, log_time, publish)
 
     def write_encoded(
         self, topic: str, data: bytes, log_time_ns: int | None = None, publish_time_ns: int | None = None
@@ -367,21 +406,26 @@ class McapRecorder:
             raise RecordingError(f"{self.path}: the disk did not take the data within {timeout_s} s")
         self._raise_if_failed()
 
-    def _enqueue(self, item: _Item | Callable[[], _Item]) -> None:
-        """Queues an item; a callable is called under the lock to make it (a message stamped with the clock)."""
+    def _enqueue(self, item: _Item | Callable[[], _Item] | Callable[[], list[_Item]], n_items: int = 0) -> None:
+        """Queues an item; a callable is called under the lock to make it (a message stamped with the clock);
+        `n_items` > 0: the callable makes that many message items, queued in order."""
         deadline = None
         while True:
             with self._lock:
                 self._raise_if_failed()
                 if self._closing:
                     raise RecordingError(f"{self.path} is closed")
-                if len(self._pending) < self._max_pending:
-                    if callable(item):
-                        item = item()
-                    self._pending.append(item)
+                if len(self._pending) + max(0, n_items - 1) < self._max_pending:
+                    made = item() if callable(item) else item
+                    if isinstance(made, list):
+                        self._pending.extend(made)
+                        is_message = True
+                    else:
+                        self._pending.append(made)
+                        is_message = isinstance(made, tuple)
                     # Read after the append: the writer sets _writer_idle before its last look at the
                     # queue, so either it sees this item or we see the flag (see _wait_for_work).
-                    if self._writer_idle or not isinstance(item, tuple) or len(self._pending) >= self._drain_at:
+                    if self._writer_idle or not is_message or len(self._pending) >= self._drain_at:
                         self._wake.set()
                     return
             self._wake.set()  # full: make the writer drain now

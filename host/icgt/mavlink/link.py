@@ -153,6 +153,7 @@ class MavlinkLink:
         self._kernel_stamps = False  # SO_TIMESTAMPNS on (Linux): datagrams carry their arrival time
         self._kernel_drops = 0  # datagrams the kernel dropped (receive buffer full), all sockets so far
         self._socket_drops = 0  # ... of which the current socket's
+        self._drops_warned_ns = -(1 << 62)
         self._outages = 0
         self._transport_errors = 0
         # timesync requests
@@ -492,10 +493,13 @@ class MavlinkLink:
         with self._lock:
             self._kernel_drops += new
             total = self._kernel_drops
+        now = time.monotonic_ns()
+        if now - self._drops_warned_ns < 1_000_000_000:  # said at most once a second; always counted
+            return
+        self._drops_warned_ns = now
         log.warning(
-            "the kernel dropped %d MAVLink datagrams (%d so far): the UDP receive buffer (%d bytes) was full; "
-            "the recorder did not read fast enough",
-            new,
+            "the kernel dropped MAVLink datagrams, %d so far: the UDP receive buffer (%d bytes) was full, "
+            "this process did not read fast enough",
             total,
             self.receive_buffer_bytes,
         )

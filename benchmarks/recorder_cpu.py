@@ -298,6 +298,14 @@ def _flight_cpu(sc: Any, out: Path, flood_hz: float, pythonpath: Path | None) ->
     return sampler.result, sampler.flood_sent, flight
 
 
+def _kernel_drops(flight: Any) -> str:
+    """The datagrams the kernel dropped before the recorder read them (a full receive buffer), as counted by
+    the recorder's link; "?" for a revision that does not count them."""
+    counters = [d for _, d in read(flight.mcap).messages("/icgt/counters")]
+    drops = counters[-1].get("mavlink", {}).get("kernel_drops") if counters else None
+    return "?" if drops is None else str(drops)
+
+
 def _logged_foreign(flight: Any) -> int:
     counters = [d for _, d in read(flight.mcap).messages("/icgt/counters")]
     return int(counters[-1].get("mavlink", {}).get("undecoded_frames", 0)) if counters else 0
@@ -379,6 +387,7 @@ def main() -> int:
                     rows["per_frame"].append(f"{per_frame_us:11.1f} us")
                     rows["projected"].append(f"{nominal_cpu + flood_hz * per_frame_us / 1e4:12.1f} %")
                 extra = f", {sent} sent, {logged} logged undecoded" if flood_hz else ""
+                extra += f", {_kernel_drops(flight)} datagrams dropped by the kernel"
                 print(f"  {name}, {label}: {cpu:.1f} % of one core{extra}", flush=True)
                 if pythonpath is None and name == "nominal":
                     mcap = flight.mcap

@@ -535,3 +535,41 @@ def test_datagrams_the_kernel_drops_are_counted(recorder):
         stranger.close()
         ap.close()
         link.stop()
+
+
+def test_one_frame_datagrams_decode_as_the_byte_stream_parser_decodes_them():
+    """The whole-frame path (pymavlink's decode straight away) gives the messages and bad-frame counts that
+    parse_buffer gives: MAVLink 1 and 2, signed (no key here), zero-trimmed payloads, a bad CRC, an unknown id."""
+    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    signer = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    signer.signing.secret_key = bytes(range(32))
+    signer.signing.sign_outgoing = True
+    good = [
+        bytes(mav.attitude_encode(7, 0.1, -0.2, 0.3, 0.0, 0.0, 0.0).pack(mav)),
+        bytes(mav.attitude_encode(8, 0.1, -0.2, 0.3, 0.0, 0.0, 0.0).pack(mav, force_mavlink1=True)),
+        bytes(mav.global_position_int_encode(9, 0, 0, 0, 0, 0, 0, 0, 0).pack(mav)),  # trailing zeros trimmed
+        bytes(mav.param_value_encode(b"GAIN", 1.5, 9, 10, 2).pack(mav)),
+        bytes(signer.system_time_encode(1_700_000_000_000_000, 10).pack(signer)),
+    ]
+    bad_crc = bytearray(good[0])
+    bad_crc[-1] ^= 0xFF
+    unknown = bytearray(good[0])
+    unknown[7:10] = (60_000).to_bytes(3, "little")
+    datagrams = [*good, bytes(bad_crc), bytes(unknown)]
+
+    def run(decode_systems):
+        link = MavlinkLink(
+            LinkConfig(url="udpin:127.0.0.1:0", decode_systems=decode_systems, request_rates=False, timesync=False)
+        )
+        got: list[MavlinkMessage] = []
+        link.subscribe(got.append)
+        for k, d in enumerate(datagrams):
+            link._feed(d, 1000 + k)
+        msgs = [(r.type, r.rx_ns, r.msg.to_dict(), bytes(r.msg.get_msgbuf())) for r in got if r.type != "BAD_DATA"]
+        return msgs, link.stats().bad_frames
+
+    whole, whole_bad = run(frozenset({1}))  # split by headers: each datagram is one whole frame
+    stream, stream_bad = run(None)  # everything through parse_buffer
+    assert whole == stream
+    assert [m[0] for m in whole[len(good) :]] == ["UNKNOWN_60000"]  # pymavlink's message of an unknown id
+    assert whole_bad == stream_bad == 1  # the bad CRC

@@ -241,7 +241,11 @@ def flood_offline_us(tmp: Path, n: int = 30_000) -> float:
     rec.mcap = McapRecorder(tmp)
     rec._register_topics()
     link = MavlinkLink(LinkConfig(url="udpin:127.0.0.1:0", decode_systems=rec._expanded_systems))
-    link.subscribe(lambda r: rec._inbox.append((_MAVLINK, r, r.rx_ns)))
+    put = rec._inbox.append
+    try:  # as the recorder subscribes: other systems' frames in batches (a revision without them: one each)
+        link.subscribe(lambda r: put((_MAVLINK, r, r.rx_ns)), undecoded=lambda b: put((_MAVLINK, b, b.rx_ns)))
+    except TypeError:
+        link.subscribe(lambda r: put((_MAVLINK, r, r.rx_ns)))
     t = time.monotonic_ns()
     t0 = time.process_time()
     for i in range(n):
@@ -261,6 +265,13 @@ def _export_baseline(rev: str, into: Path) -> Path:
     into.mkdir(parents=True, exist_ok=True)
     archive = subprocess.run(["git", "-C", str(repo), "archive", rev, "host"], check=True, capture_output=True)
     subprocess.run(["tar", "-x", "-C", str(into)], input=archive.stdout, check=True)
+    # The venv's editable install of this tree is a meta path finder, ahead of PYTHONPATH: without this the
+    # "baseline" would import this tree's icgt. site imports sitecustomize after the .pth files: drop it there.
+    (into / "host" / "sitecustomize.py").write_text(
+        "import sys\n\n"
+        "_EDITABLE = ('ScikitBuildInplaceFinder', 'ScikitBuildRedirectingFinder')\n"
+        "sys.meta_path[:] = [f for f in sys.meta_path if type(f).__name__ not in _EDITABLE]\n"
+    )
     return into / "host"
 
 
@@ -285,6 +296,14 @@ def _flight_cpu(sc: Any, out: Path, flood_hz: float, pythonpath: Path | None) ->
         else:
             os.environ["PYTHONPATH"] = saved
     return sampler.result, sampler.flood_sent, flight
+
+
+def _kernel_drops(flight: Any) -> str:
+    """The datagrams the kernel dropped before the recorder read them (a full receive buffer), as counted by
+    the recorder's link; "?" for a revision that does not count them."""
+    counters = [d for _, d in read(flight.mcap).messages("/icgt/counters")]
+    drops = counters[-1].get("mavlink", {}).get("kernel_drops") if counters else None
+    return "?" if drops is None else str(drops)
 
 
 def _logged_foreign(flight: Any) -> int:
@@ -368,6 +387,7 @@ def main() -> int:
                     rows["per_frame"].append(f"{per_frame_us:11.1f} us")
                     rows["projected"].append(f"{nominal_cpu + flood_hz * per_frame_us / 1e4:12.1f} %")
                 extra = f", {sent} sent, {logged} logged undecoded" if flood_hz else ""
+                extra += f", {_kernel_drops(flight)} datagrams dropped by the kernel"
                 print(f"  {name}, {label}: {cpu:.1f} % of one core{extra}", flush=True)
                 if pythonpath is None and name == "nominal":
                     mcap = flight.mcap

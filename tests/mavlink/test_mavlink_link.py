@@ -12,6 +12,7 @@ import pytest
 from mavlink_peers import AutopilotPeer, free_udp_port, wait_until
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from icgt.mavlink.frames import UndecodedBatch
 from icgt.mavlink.link import (
     DEFAULT_STREAM_RATES,
     LinkConfig,
@@ -430,3 +431,145 @@ def test_stop_joins_threads_and_closes_the_socket(recorder):
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     s.bind(("127.0.0.1", port))
     s.close()
+
+
+def test_other_systems_frames_come_in_order_in_batches_to_a_batch_subscriber(recorder):
+    """A burst of other systems' frames with the autopilot's in between, read in drains (read_batch_s): the
+    batch subscriber gets every foreign frame once, in order with the decoded messages, each with its own
+    arrival time, several per batch; a plain subscriber still gets one message per foreign frame."""
+    batch_s = 0.2
+    link, port = make_link(
+        recorder, request_rates=False, timesync=False, decode_systems=frozenset({1}), read_batch_s=batch_s
+    )
+    seen: list[tuple[str, int, int]] = []  # (who, time_boot_ms of the frame, rx_ns) as delivered
+    batches: list[UndecodedBatch] = []
+    lock = threading.Lock()
+
+    def on_batch(batch: UndecodedBatch) -> None:
+        with lock:
+            batches.append(batch)
+            for buf, sysid, _comp, _mid, rx in batch.frames:
+                seen.append(("foreign", int(mavlink2.MAVLink(None).decode(bytearray(buf)).time_boot_ms), rx))
+                assert sysid == 42
+
+    def on_message(rec: MavlinkMessage) -> None:
+        if rec.type == "ATTITUDE":
+            with lock:
+                seen.append(("autopilot", int(rec.msg.time_boot_ms), rec.rx_ns))
+
+    link.subscribe(on_message, undecoded=on_batch)
+    plain: list[MavlinkMessage] = []
+    link.subscribe(plain.append, ["ATTITUDE"])
+    link.start()
+    ap = AutopilotPeer(port)
+    stranger = AutopilotPeer(port, system=42, component=1)
+    try:
+        time.sleep(0.3)
+        sent: dict[int, int] = {}
+        for k in range(60):  # 5 foreign frames, then one of the autopilot's, ...
+            peer = ap if k % 6 == 5 else stranger
+            sent[k] = time.monotonic_ns()
+            peer.send(peer.mav.attitude_encode(k, 0, 0, 0, 0, 0, 0))
+            if k % 12 == 11:
+                time.sleep(0.05)
+        assert wait_until(lambda: len(seen) == 60 and len(plain) == 60)
+        with lock:
+            assert [k for _, k, _ in seen] == list(range(60))  # every frame once, in the order sent
+            assert [who for who, k, _ in seen] == ["autopilot" if k % 6 == 5 else "foreign" for k in range(60)]
+            lags = [rx - sent[k] for _, k, rx in seen]
+            assert max(lags) < batch_s * 1e9 / 2, "a stamp is the read time, not the arrival"
+            assert min(lags) > -1_000_000
+            assert sum(len(b) for b in batches) == 50 and len(batches) < 50
+        assert [r.src_system == 42 for r in plain] == [k % 6 != 5 for k in range(60)]
+        stats = link.stats()
+        assert stats.undecoded_frames == 50 and stats.messages_by_type["ATTITUDE"] == 60
+        assert stats.v2_frames >= 60 and stats.bytes_received >= 60 * len(
+            bytes(ap.mav.attitude_encode(0, 0, 0, 0, 0, 0, 0).pack(ap.mav))
+        )
+    finally:
+        stranger.close()
+        ap.close()
+        link.stop()
+
+
+def test_datagrams_the_kernel_drops_are_counted(recorder):
+    """A reader held up with a small receive buffer: the kernel drops what does not fit, and the link counts
+    it (SO_RXQ_OVFL, told with the next datagram), so that what was received plus what was dropped is what
+    was sent."""
+    link, port = make_link(
+        recorder,
+        request_rates=False,
+        timesync=False,
+        decode_systems=frozenset({1}),
+        read_batch_s=0.02,
+        udp_receive_buffer_bytes=16_384,
+    )
+    held = threading.Event()
+    release = threading.Event()
+
+    def hold(rec: MavlinkMessage) -> None:
+        if rec.src_system == 1 and not held.is_set():
+            held.set()
+            release.wait(5.0)  # the reader is stuck here while the flood comes
+
+    link.subscribe(hold, ["ATTITUDE"])
+    link.start()
+    ap = AutopilotPeer(port)
+    stranger = AutopilotPeer(port, system=42, component=1)
+    n = 2000
+    try:
+        ap.send(ap.mav.attitude_encode(0, 0, 0, 0, 0, 0, 0))
+        assert wait_until(held.is_set)
+        for k in range(n):
+            stranger.send(stranger.mav.attitude_encode(k, 0, 0, 0, 0, 0, 0))
+        release.set()
+        assert wait_until(lambda: link.stats().undecoded_frames > 0)
+        # the count comes with the next datagram queued after the drops
+        stranger.send(stranger.mav.attitude_encode(n, 0, 0, 0, 0, 0, 0))
+        ok = wait_until(lambda: link.stats().undecoded_frames + link.stats().kernel_drops == n + 1, timeout=5.0)
+        assert ok, link.stats()
+        stats = link.stats()
+        assert 0 < stats.kernel_drops < n, stats
+    finally:
+        release.set()
+        stranger.close()
+        ap.close()
+        link.stop()
+
+
+def test_one_frame_datagrams_decode_as_the_byte_stream_parser_decodes_them():
+    """The whole-frame path (pymavlink's decode straight away) gives the messages and bad-frame counts that
+    parse_buffer gives: MAVLink 1 and 2, signed (no key here), zero-trimmed payloads, a bad CRC, an unknown id."""
+    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    signer = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    signer.signing.secret_key = bytes(range(32))
+    signer.signing.sign_outgoing = True
+    good = [
+        bytes(mav.attitude_encode(7, 0.1, -0.2, 0.3, 0.0, 0.0, 0.0).pack(mav)),
+        bytes(mav.attitude_encode(8, 0.1, -0.2, 0.3, 0.0, 0.0, 0.0).pack(mav, force_mavlink1=True)),
+        bytes(mav.global_position_int_encode(9, 0, 0, 0, 0, 0, 0, 0, 0).pack(mav)),  # trailing zeros trimmed
+        bytes(mav.param_value_encode(b"GAIN", 1.5, 9, 10, 2).pack(mav)),
+        bytes(signer.system_time_encode(1_700_000_000_000_000, 10).pack(signer)),
+    ]
+    bad_crc = bytearray(good[0])
+    bad_crc[-1] ^= 0xFF
+    unknown = bytearray(good[0])
+    unknown[7:10] = (60_000).to_bytes(3, "little")
+    datagrams = [*good, bytes(bad_crc), bytes(unknown)]
+
+    def run(decode_systems):
+        link = MavlinkLink(
+            LinkConfig(url="udpin:127.0.0.1:0", decode_systems=decode_systems, request_rates=False, timesync=False)
+        )
+        got: list[MavlinkMessage] = []
+        link.subscribe(got.append)
+        for k, d in enumerate(datagrams):
+            link._feed(d, 1000 + k)
+        msgs = [(r.type, r.rx_ns, r.msg.to_dict(), bytes(r.msg.get_msgbuf())) for r in got if r.type != "BAD_DATA"]
+        return msgs, link.stats().bad_frames
+
+    whole, whole_bad = run(frozenset({1}))  # split by headers: each datagram is one whole frame
+    stream, stream_bad = run(None)  # everything through parse_buffer
+    assert whole == stream
+    assert [m[0] for m in whole[len(good) :]] == ["UNKNOWN_60000"]  # pymavlink's message of an unknown id
+    assert whole_bad == stream_bad == 1  # the bad CRC

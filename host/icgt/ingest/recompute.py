@@ -25,7 +25,7 @@ import base64
 import dataclasses
 import json
 import math
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
@@ -162,8 +162,7 @@ class _Feeder:
             rx = int(data["host_tx_ns"])
             self.sync.on_timesync_request(rx)
         elif topic == layout.MAVLINK_OTHER_SYSTEMS:
-            for frame in data.get("frames") or ():
-                self._mavlink(topic, frame)
+            self._other_systems(topic, data.get("frames") or ())
             return
         elif topic.startswith(layout.MAVLINK_PREFIX):
             if not self._mavlink(topic, data):
@@ -174,6 +173,26 @@ class _Feeder:
         self.latest_ns = max(self.latest_ns, rx)
         if self.lookahead_ns is not None:
             self._take(self.sync.poll(self.latest_ns - self.lookahead_ns))
+
+    def _other_systems(self, topic: str, frames: Iterable[dict[str, Any]]) -> None:
+        """Other systems' raw frames: counted per type without decoding them, as the recorder's synchroniser
+        counted them (`Synchroniser.on_other_systems`). A frame of the autopilot's system (a recompute with
+        another ``autopilot_system``) or one without its type, time or bytes goes through `_mavlink` alone."""
+        counts: dict[str, int] = {}
+        autopilot = self.sync.autopilot.system
+        for frame in frames:
+            mtype = frame.get("msg_type")
+            if (
+                not isinstance(mtype, str)
+                or frame.get("src_system") == autopilot
+                or not isinstance(frame.get("raw"), str)
+                or not isinstance(frame.get("host_rx_ns"), int)
+            ):
+                self._mavlink(topic, frame)
+                continue
+            counts[mtype] = counts.get(mtype, 0) + 1
+        if counts:
+            self.sync.on_other_systems(counts)
 
     def _mavlink(self, topic: str, data: dict[str, Any]) -> bool:
         """Feed one logged MAVLink frame; False if it has no decodable raw frame."""

@@ -39,7 +39,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from icgt.mavlink.autopilot_rules import BOOT_CLOCK_TYPES, REBOOT_BACKSTEP_MS, is_autopilot_heartbeat
-from icgt.mavlink.frames import UndecodedFrame, split_datagram
+from icgt.mavlink.frames import ForeignFrame, UndecodedBatch, UndecodedFrame, split_foreign
 from icgt.mavlink.link_types import (
     DEFAULT_STREAM_RATES,
     MAV_COMP_ID_CAMERA,
@@ -81,8 +81,13 @@ log = logging.getLogger(__name__)
 # of the datagram's arrival on CLOCK_REALTIME in the ancillary data of recvmsg.
 _SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 _SCM_TIMESTAMPNS = _SO_TIMESTAMPNS
-_TIMESPEC_CMSG_SPACE = socket.CMSG_SPACE(16)
-_STX_V1 = 0xFE  # a MAVLink 1 frame's first byte
+# SO_RXQ_OVFL: a datagram read after the kernel dropped some (receive buffer full) carries the socket's count of
+# drops so far (a u32) in its ancillary data.
+_SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
+_CMSG_SPACE = socket.CMSG_SPACE(16) + socket.CMSG_SPACE(4)
+_TIMESPEC = struct.Struct("qq")  # struct timespec: tv_sec, tv_nsec
+_U32 = struct.Struct("I")
+_DRAIN_MAX = 1024  # datagrams read per wake-up, at most
 
 
 class MavlinkLink:
@@ -146,6 +151,9 @@ class MavlinkLink:
         self._undecoded = 0
         self.receive_buffer_bytes = 0  # the UDP socket's receive buffer once open [bytes]
         self._kernel_stamps = False  # SO_TIMESTAMPNS on (Linux): datagrams carry their arrival time
+        self._kernel_drops = 0  # datagrams the kernel dropped (receive buffer full), all sockets so far
+        self._socket_drops = 0  # ... of which the current socket's
+        self._drops_warned_ns = -(1 << 62)
         self._outages = 0
         self._transport_errors = 0
         # timesync requests
@@ -186,6 +194,9 @@ class MavlinkLink:
             try:
                 sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
                 self._kernel_stamps = True
+                with contextlib.suppress(OSError):  # drops counted if the kernel can say so
+                    sock.setsockopt(socket.SOL_SOCKET, _SO_RXQ_OVFL, 1)
+                self._socket_drops = 0  # a new socket counts from 0
             except OSError as exc:
                 log.warning("no kernel receive timestamps on the MAVLink socket (%s): arrival = read time", exc)
         if got < want:
@@ -215,12 +226,19 @@ class MavlinkLink:
 
     # ------------------------------------------------------------------ subscriptions
     def subscribe(
-        self, callback: Callable[[MavlinkMessage], object], types: Iterable[str] | None = None
+        self,
+        callback: Callable[[MavlinkMessage], object],
+        types: Iterable[str] | None = None,
+        *,
+        undecoded: Callable[[UndecodedBatch], object] | None = None,
     ) -> Subscription:
         """Call ``callback(received)`` on the reader thread for every message (or those of ``types``).
 
-        The callback must not block; exceptions it raises are counted and logged, never propagated."""
-        sub = Subscription(callback, None if types is None else frozenset(types))
+        With ``undecoded``, the frames of other systems than ``LinkConfig.decode_systems`` (left undecoded)
+        go to ``undecoded(batch)`` instead, several at a time and in order (each `UndecodedBatch` ends where
+        a decoded message came in between, which goes to ``callback`` after it), whatever ``types`` says.
+        The callbacks must not block; exceptions they raise are counted and logged, never propagated."""
+        sub = Subscription(callback, None if types is None else frozenset(types), undecoded)
         with self._lock:
             self._subs = (*self._subs, sub)
         return sub
@@ -326,6 +344,7 @@ class MavlinkLink:
                 undecoded_frames=self._undecoded,
                 outages=self._outages,
                 transport_errors=self._transport_errors,
+                kernel_drops=self._kernel_drops,
             )
 
     # ------------------------------------------------------------------ reader thread
@@ -352,11 +371,16 @@ class MavlinkLink:
         if not ready:
             return
         if self._datagram:
-            for _ in range(1024):  # drain the socket, stamping each datagram
-                got = self._recv_datagram(conn)
-                if got is None:
-                    break
-                self._feed(*got)
+            sock = getattr(conn, "port", None)
+            if self._kernel_stamps and isinstance(sock, socket.socket):
+                if self._drain_stamped(conn, sock) >= _DRAIN_MAX:
+                    return  # a backlog (the reader was held up): read on without the pause
+            else:
+                for _ in range(_DRAIN_MAX):  # drain the socket, stamping each datagram as it is read
+                    got = self._recv_datagram(conn)
+                    if got is None:
+                        break
+                    self._feed(*got)
             if self._kernel_stamps and self.config.read_batch_s > 0.0:
                 # Each datagram carries its arrival time from the kernel: reading it later changes no stamp,
                 # and one wake-up per pause instead of one per datagram saves most of the reader's CPU.
@@ -388,39 +412,109 @@ class MavlinkLink:
             self._feed(data if isinstance(data, bytes) else bytes(data), rx_ns)
 
     def _recv_datagram(self, conn: Any) -> tuple[bytes, int] | None:
-        """One datagram and its arrival time [ns, host monotonic], or None when none is waiting.
+        """One datagram and its read time [ns, host clock], or None when none is waiting (no kernel stamps:
+        another clock than the host's, or a platform without SO_TIMESTAMPNS)."""
+        data = conn.recv()
+        rx_ns = self._clock()
+        return (bytes(data), rx_ns) if data else None
+
+    def _drain_stamped(self, conn: Any, sock: socket.socket) -> int:
+        """Read every waiting datagram (up to _DRAIN_MAX) with its arrival time from the kernel; how many.
 
         With the kernel's receive timestamp (SO_TIMESTAMPNS) the arrival time is when the datagram reached
         the socket, not when this thread got round to reading it: a reader that is late (a loaded computer,
         a burst in the receive buffer) must not make every message look late, which a one-way clock from
         arrival times cannot tell from the autopilot's clock. pymavlink's mavudp reads with recvfrom and
-        keeps no timestamp, so the socket is read here, with mavudp's own client bookkeeping."""
-        sock = getattr(conn, "port", None)
-        if not self._kernel_stamps or not isinstance(sock, socket.socket):
-            data = conn.recv()
-            rx_ns = self._clock()
-            return (bytes(data), rx_ns) if data else None
+        keeps no timestamp, so the socket is read here, with mavudp's own client bookkeeping (once per
+        sender per drain, at its first datagram). The kernel stamps on CLOCK_REALTIME: its offset to the
+        host's monotonic clock is read once per drain (a few ms at most), and a stamp is never later than
+        its read time (a realtime step would say so). Other systems' frames are collected over the drain and
+        passed on as batches, each ending where a decoded message comes in between (order kept)."""
+        recvmsg = sock.recvmsg
+        clock = self._clock
+        unpack = _TIMESPEC.unpack_from
+        decode = self.config.decode_systems
+        # Frames of our system or the autopilot's left undecoded take `_handle`'s per-message checks.
+        bulk = decode is not None and not ({self.config.system_id, self._ap_system} - decode)
+        offset_ns = time.time_ns() - time.monotonic_ns()
+        foreign: list[ForeignFrame] = []
+        senders: set[Any] = set()
+        drops = self._socket_drops
+        read = 0
         try:
-            data, ancdata, _flags, addr = sock.recvmsg(65535, _TIMESPEC_CMSG_SPACE)
-        except (BlockingIOError, InterruptedError):
-            return None
-        except OSError as exc:
-            if exc.errno == errno.ECONNREFUSED:
-                return None
-            raise
-        now_ns = self._clock()
-        rx_ns = now_ns
-        for level, kind, payload in ancdata:
-            if level == socket.SOL_SOCKET and kind == _SCM_TIMESTAMPNS and len(payload) >= 16:
-                sec, nsec = struct.unpack("qq", payload[:16])
-                stamped = sec * 1_000_000_000 + nsec - (time.time_ns() - time.monotonic_ns())
-                rx_ns = min(now_ns, stamped)  # never later than now (a realtime step would say so)
+            for _ in range(_DRAIN_MAX):
+                try:
+                    data, ancdata, _flags, addr = recvmsg(65535, _CMSG_SPACE)
+                except (BlockingIOError, InterruptedError):
+                    break
+                except OSError as exc:
+                    if exc.errno == errno.ECONNREFUSED:
+                        break
+                    raise
+                rx_ns = clock()
+                for level, kind, payload in ancdata:
+                    if level != socket.SOL_SOCKET:
+                        continue
+                    if kind == _SCM_TIMESTAMPNS and len(payload) >= 16:
+                        sec, nsec = unpack(payload)
+                        stamped = sec * 1_000_000_000 + nsec - offset_ns
+                        if stamped < rx_ns:
+                            rx_ns = stamped
+                    elif kind == _SO_RXQ_OVFL and len(payload) >= 4:
+                        drops = _U32.unpack_from(payload)[0]
+                read += 1
+                if addr not in senders:  # before its frames are handled: an answer to them goes back to it
+                    senders.add(addr)
+                    self._note_sender(conn, addr)
+                if not data:
+                    continue
+                if not bulk or decode is None:
+                    self._feed(data, rx_ns)
+                    continue
+                keep = split_foreign(data, rx_ns, decode, foreign)
+                if keep:
+                    if foreign:
+                        self._pass_on_foreign(foreign)
+                        foreign = []
+                    self._parse(keep, rx_ns, whole_frame=keep is data)  # the datagram is that one frame
+                elif keep is None:  # not whole frames: all of it to pymavlink
+                    if foreign:
+                        self._pass_on_foreign(foreign)
+                        foreign = []
+                    self._parse(data, rx_ns)
+        finally:
+            if foreign:
+                self._pass_on_foreign(foreign)
+            if drops != self._socket_drops:
+                self._count_kernel_drops(drops)
+        return read
+
+    def _count_kernel_drops(self, socket_drops: int) -> None:
+        """The socket's count of datagrams dropped by the kernel went up: counted (stats) and said."""
+        new = (socket_drops - self._socket_drops) % (1 << 32)  # a u32 that may wrap
+        self._socket_drops = socket_drops
+        with self._lock:
+            self._kernel_drops += new
+            total = self._kernel_drops
+        now = time.monotonic_ns()
+        if now - self._drops_warned_ns < 1_000_000_000:  # said at most once a second; always counted
+            return
+        self._drops_warned_ns = now
+        log.warning(
+            "the kernel dropped MAVLink datagrams, %d so far: the UDP receive buffer (%d bytes) was full, "
+            "this process did not read fast enough",
+            total,
+            self.receive_buffer_bytes,
+        )
+
+    @staticmethod
+    def _note_sender(conn: Any, addr: Any) -> None:
+        """mavudp's bookkeeping of who sent to us: a udpin link answers its clients, a broadcast one the last."""
         if getattr(conn, "udp_server", False):
             conn.clients.add(addr)
             conn.clients_last_alive[addr] = time.time()
         elif getattr(conn, "broadcast", False):
             conn.last_address = addr
-        return (data, rx_ns) if data else None
 
     def _new_parser(self) -> Any:
         parser = mavlink2.MAVLink(None, srcSystem=self.config.system_id, srcComponent=self.config.component_id)
@@ -430,15 +524,39 @@ class MavlinkLink:
         return parser
 
     def _feed(self, data: bytes, rx_ns: int) -> None:
+        """One chunk read at ``rx_ns``: a datagram (other systems' frames split off, see `decode_systems`)
+        or a piece of a stream."""
         decode = self.config.decode_systems
         if decode is not None and self._datagram:
-            split = split_datagram(data, decode)
-            if split is not None:
-                data, others = split
-                if others:
-                    self._pass_on_undecoded(others, rx_ns)
-                if not data:
-                    return
+            foreign: list[ForeignFrame] = []
+            data = bytes(data)
+            keep = split_foreign(data, rx_ns, decode, foreign)
+            if keep is not None:
+                if foreign:
+                    self._pass_on_foreign(foreign)
+                if keep:
+                    self._parse(keep, rx_ns, whole_frame=keep is data)
+                return
+        self._parse(data, rx_ns)
+
+    def _parse(self, data: bytes, rx_ns: int, *, whole_frame: bool = False) -> None:
+        """Decode with pymavlink and handle each message (a datagram's cut-off frame counts as bad).
+
+        ``whole_frame``: ``data`` is exactly one frame by its header (`split_foreign` said so), as most
+        datagrams are: pymavlink's decode straight away (CRC, signature, fields), without its byte-stream
+        state machine, which is a third of its time per message. A frame it refuses counts as bad, as the
+        BAD_DATA that parse_buffer would make of it."""
+        if whole_frame:
+            try:
+                msg = self._parser.decode(bytearray(data))
+            except Exception:  # MAVError: bad CRC, unknown id, bad signature; struct.error: bad length
+                msg = None
+            with self._lock:
+                self._bytes += len(data)
+                self._bad_frames += msg is None
+            if msg is not None:
+                self._handle(MavlinkMessage(msg, rx_ns))
+            return
         truncated = False
         try:
             msgs = self._parser.parse_buffer(data) or []
@@ -457,37 +575,49 @@ class MavlinkLink:
         for msg in msgs:
             self._handle(MavlinkMessage(msg, rx_ns))
 
-    def _pass_on_undecoded(self, frames: list[UndecodedFrame], rx_ns: int) -> None:
-        """Other systems' frames of one datagram: counted under one lock, then to the subscribers.
+    def _pass_on_foreign(self, frames: list[ForeignFrame]) -> None:
+        """Other systems' frames, in order: counted under one lock, then to the subscribers, as one
+        `UndecodedBatch` to those that take batches and one `UndecodedFrame` each to the others.
 
         What `_handle` does for each, less what cannot apply to them: they are never BAD_DATA, and a frame
         with our system id or the autopilot's (not the case when decode_systems holds them, as the recorder's
         does) still goes through `_handle` (echo and same-id checks, liveness)."""
+        batch = UndecodedBatch(frames)
         mine = (self.config.system_id, self._ap_system)
-        if any(f.src_system in mine for f in frames):
+        if any(f[1] in mine for f in frames):
             with self._lock:
+                self._bytes += batch.size_bytes()
                 self._undecoded += len(frames)
-            for frame in frames:
+            for frame, rx_ns in batch.undecoded_frames():
                 self._handle(MavlinkMessage(frame, rx_ns))
             return
+        types = batch.type_counts()
+        v1 = batch.v1_frames()
+        size = batch.size_bytes()
         with self._lock:
+            self._bytes += size
             self._undecoded += len(frames)
             by_type = self._by_type
-            v1 = 0
-            for frame in frames:
-                mtype = frame.get_type()
-                by_type[mtype] = by_type.get(mtype, 0) + 1
-                v1 += frame.buf[0] == _STX_V1
+            for name, n in types.items():
+                by_type[name] = by_type.get(name, 0) + n
             self._v1 += v1
             self._v2 += len(frames) - v1
             subs = self._subs
-        for frame in frames:
-            rec = MavlinkMessage(frame, rx_ns)
-            mtype = frame.get_type()
-            for sub in subs:
+        singles: list[tuple[UndecodedFrame, int]] | None = None
+        for sub in subs:
+            if sub.undecoded is not None:
+                try:
+                    sub.undecoded(batch)
+                except Exception:
+                    self._count_callback_error(f"subscriber {sub.undecoded!r} on {batch!r}")
+                continue
+            if singles is None:
+                singles = batch.undecoded_frames()
+            for frame, rx_ns in singles:
+                mtype = frame.get_type()
                 if sub.types is None or mtype in sub.types:
                     try:
-                        sub.callback(rec)
+                        sub.callback(MavlinkMessage(frame, rx_ns))
                     except Exception:
                         self._count_callback_error(f"subscriber {sub.callback!r} on {mtype}")
 

@@ -10,6 +10,7 @@ from typing import Any
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from icgt.errors import IcgtError
+from icgt.mavlink.frames import UndecodedBatch
 
 __all__ = [
     "DEFAULT_STREAM_RATES",
@@ -196,6 +197,8 @@ class LinkStats:
     undecoded_frames: int
     outages: int
     transport_errors: int
+    # UDP datagrams the kernel dropped because the socket's receive buffer was full (SO_RXQ_OVFL, Linux)
+    kernel_drops: int = 0
     # with a signing key only: frames received with a valid signature, an invalid one, none
     signed_ok: int = 0
     signed_bad: int = 0
@@ -205,11 +208,17 @@ class LinkStats:
 class Subscription:
     """Handle returned by `MavlinkLink.subscribe`; pass it to `unsubscribe`."""
 
-    __slots__ = ("callback", "types")
+    __slots__ = ("callback", "types", "undecoded")
 
-    def __init__(self, callback: Callable[[MavlinkMessage], object], types: frozenset[str] | None) -> None:
+    def __init__(
+        self,
+        callback: Callable[[MavlinkMessage], object],
+        types: frozenset[str] | None,
+        undecoded: Callable[[UndecodedBatch], object] | None = None,
+    ) -> None:
         self.callback = callback
         self.types = types
+        self.undecoded = undecoded  # takes other systems' undecoded frames in batches instead of `callback`
 
 
 @dataclasses.dataclass(slots=True)

@@ -22,7 +22,7 @@ import bisect
 import dataclasses
 import math
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
 
 if TYPE_CHECKING:
@@ -482,6 +482,13 @@ class TelemetryStore:
         """A message of another system than the autopilot's: counted as `ingest` counts it, nothing stored."""
         if mtype in TELEMETRY_TYPES:
             self._count("other_source")
+
+    def count_other_sources(self, type_counts: Mapping[str, int]) -> None:
+        """`count_other_source` for many messages at once: ``type_counts`` maps message type -> how many."""
+        n = sum(k for mtype, k in type_counts.items() if mtype in TELEMETRY_TYPES)
+        if n:
+            with self._lock:
+                self._counts["other_source"] += n
 
     def _count(self, key: str) -> None:
         with self._lock:

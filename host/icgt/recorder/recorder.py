@@ -42,6 +42,7 @@ from icgt.device.limits import CORE, BoardLimits, LimitError, check_capture, for
 from icgt.errors import IcgtError
 from icgt.geotag import FrameRecord
 from icgt.mavlink.camera import CameraComponent, CommandResult, HandlerResult
+from icgt.mavlink.frames import UndecodedBatch
 from icgt.mavlink.link import LinkConfig, MavlinkEvent, MavlinkLink, MavlinkMessage, StreamRate
 from icgt.mavlink.signing import load_signing_key
 from icgt.protocol import PROTOCOL_VERSION, TABLE_HASH
@@ -599,12 +600,21 @@ class Recorder:
             on_event=lambda event: self._inbox.append((_MAVLINK_EVENT, event, event.host_ns)),
             on_timesync_sent=lambda tx_ns: self._inbox.append((_TIMESYNC_SENT, tx_ns, tx_ns)),
         )
-        self.mavlink.subscribe(lambda rec: self._inbox.append((_MAVLINK, rec, rec.rx_ns)))
+        self.mavlink.subscribe(
+            lambda rec: self._inbox.append((_MAVLINK, rec, rec.rx_ns)),
+            undecoded=lambda batch: self._inbox.append((_MAVLINK, batch, batch.rx_ns)),  # other systems, in bulk
+        )
         self.mavlink.start()
         self.camera = build_camera(self.config, self.mavlink, _CaptureHandler(self))  # it logs what it refuses
         self.camera.start()
 
-    def _on_mavlink_message(self, rec: MavlinkMessage) -> None:
+    def _on_mavlink_message(self, rec: MavlinkMessage | UndecodedBatch) -> None:
+        if isinstance(rec, UndecodedBatch):  # other systems' frames (all of a flood): logged and counted in bulk
+            self._other_systems += topics.mavlink_raw_payloads(rec)
+            self.sync.on_other_systems(rec.type_counts())
+            if len(self._other_systems) >= _OTHER_SYSTEMS_BATCH:
+                self._flush_other_systems()
+            return
         name = rec.type
         if name == "BAD_DATA":
             return
@@ -630,8 +640,10 @@ class Recorder:
         self.views.on_mavlink(rec.msg, rec.rx_ns)
 
     def _flush_other_systems(self) -> None:
-        batch, self._other_systems = self._other_systems, []
-        self._write(layout.MAVLINK_OTHER_SYSTEMS, {"frames": batch}, batch[0]["host_rx_ns"])
+        frames, self._other_systems = self._other_systems, []
+        for i in range(0, len(frames), _OTHER_SYSTEMS_BATCH):
+            batch = frames[i : i + _OTHER_SYSTEMS_BATCH]
+            self._write(layout.MAVLINK_OTHER_SYSTEMS, {"frames": batch}, batch[0]["host_rx_ns"])
 
     def _on_timesync_sent(self, tx_ns: int) -> None:
         self._write(layout.CLOCK_AUTOPILOT_REQUESTS, {"host_tx_ns": tx_ns}, tx_ns)

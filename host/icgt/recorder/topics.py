@@ -16,7 +16,7 @@ from typing import Any
 
 import msgspec
 
-from icgt.mavlink.frames import UndecodedFrame
+from icgt.mavlink.frames import UndecodedBatch, UndecodedFrame, message_name
 from icgt.protocol import Message
 from icgt.protocol.messages import FIELD_TYPES
 
@@ -61,6 +61,7 @@ __all__ = [
     "device_topic",
     "mavlink_payload",
     "mavlink_raw_payload",
+    "mavlink_raw_payloads",
     "mavlink_schema",
     "mavlink_topic",
 ]
@@ -185,3 +186,18 @@ def mavlink_raw_payload(msg: Any, host_rx_ns: int) -> dict[str, Any]:
         "host_rx_ns": host_rx_ns,
         "raw": base64.b64encode(bytes(msg.get_msgbuf())).decode(),
     }
+
+
+def mavlink_raw_payloads(batch: UndecodedBatch) -> list[dict[str, Any]]:
+    """`mavlink_raw_payload` of each frame of a batch, in order (the same records, made in one pass)."""
+    name = message_name
+    return [
+        {
+            "msg_type": name(mid),
+            "src_system": sysid,
+            "src_component": compid,
+            "host_rx_ns": rx_ns,
+            "raw": b2a_base64(buf, newline=False).decode(),
+        }
+        for buf, sysid, compid, mid, rx_ns in batch.frames
+    ]

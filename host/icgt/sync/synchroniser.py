@@ -192,6 +192,12 @@ class Synchroniser:
         """The host's CLOCK_REALTIME [ns] at CLOCK_MONOTONIC ``host_ns``: UTC until the autopilot has GPS time."""
         self.utc.add_host_realtime(host_ns, realtime_ns)
 
+    def on_other_systems(self, type_counts: Mapping[str, int]) -> None:
+        """Messages of systems other than the autopilot's, counted per type (what `on_mavlink` does with each
+        of them, in bulk: a flood of them must not cost a call each)."""
+        self.counts["mavlink_messages"] += sum(type_counts.values())
+        self.telemetry.count_other_sources(type_counts)
+
     def on_mavlink(self, msg: Any, rx_ns: int) -> TimesyncReply | None:
         """Any MAVLink message; returns the TIMESYNC round trip when it was a reply to us."""
         self.counts["mavlink_messages"] += 1

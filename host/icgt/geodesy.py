@@ -20,7 +20,8 @@ Conventions used everywhere in `icgt.sim`:
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Callable, Sequence
+from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -60,40 +61,70 @@ def _small(x: Any, n: int) -> tuple[float, ...] | None:
     return None
 
 
-def _geodetic_to_ecef1(lat_deg: float, lon_deg: float, h_m: float) -> tuple[float, float, float]:
-    lat, lon = math.radians(lat_deg), math.radians(lon_deg)
-    sin_lat, cos_lat = math.sin(lat), math.cos(lat)
-    n = WGS84_A_M / math.sqrt(1.0 - WGS84_E2 * sin_lat**2)
+class _Ops(NamedTuple):
+    """The functions the closed forms below need, from `math` (one point) or numpy (arrays)."""
+
+    sin: Callable[[Any], Any]
+    cos: Callable[[Any], Any]
+    sqrt: Callable[[Any], Any]
+    cbrt: Callable[[Any], Any]
+    hypot: Callable[[Any, Any], Any]
+    atan2: Callable[[Any, Any], Any]
+    maximum: Callable[[Any, Any], Any]
+    radians: Callable[[Any], Any]
+    degrees: Callable[[Any], Any]
+
+
+_MATH = _Ops(math.sin, math.cos, math.sqrt, math.cbrt, math.hypot, math.atan2, max, math.radians, math.degrees)
+_NUMPY = _Ops(np.sin, np.cos, np.sqrt, np.cbrt, np.hypot, np.arctan2, np.maximum, np.radians, np.degrees)
+
+
+def _ecef_of(lat_deg: Any, lon_deg: Any, h_m: Any, ops: _Ops) -> tuple[Any, Any, Any]:
+    """X = (N + h) cos(lat) cos(lon), Y = (N + h) cos(lat) sin(lon), Z = (N (1 - e^2) + h) sin(lat),
+    with N = a / sqrt(1 - e^2 sin^2(lat)) the prime vertical radius of curvature."""
+    lat, lon = ops.radians(lat_deg), ops.radians(lon_deg)
+    sin_lat, cos_lat = ops.sin(lat), ops.cos(lat)
+    n = WGS84_A_M / ops.sqrt(1.0 - WGS84_E2 * sin_lat**2)
     return (
-        (n + h_m) * cos_lat * math.cos(lon),
-        (n + h_m) * cos_lat * math.sin(lon),
+        (n + h_m) * cos_lat * ops.cos(lon),
+        (n + h_m) * cos_lat * ops.sin(lon),
         (n * (1.0 - WGS84_E2) + h_m) * sin_lat,
     )
 
 
-def _ecef_to_geodetic1(x: float, y: float, z: float) -> tuple[float, float, float]:
-    """`ecef_to_geodetic` for one point, in `math` (the same steps)."""
+def _geodetic_of(x: Any, y: Any, z: Any, ops: _Ops) -> tuple[Any, Any, Any]:
+    """Closed form (Heikkinen 1982), exact to well below a millimetre near the Earth's surface; no iteration."""
     a, b, e2 = WGS84_A_M, WGS84_B_M, WGS84_E2
-    p = math.hypot(x, y)
+    p = ops.hypot(x, y)
     f_term = 54.0 * b**2 * z**2
     g = p**2 + (1.0 - e2) * z**2 - e2 * (a**2 - b**2)
     c = e2**2 * f_term * p**2 / g**3
-    s = math.cbrt(1.0 + c + math.sqrt(c**2 + 2.0 * c))
+    s = ops.cbrt(1.0 + c + ops.sqrt(c**2 + 2.0 * c))
     k = s + 1.0 + 1.0 / s
     big_p = f_term / (3.0 * k**2 * g**2)
-    q = math.sqrt(1.0 + 2.0 * e2**2 * big_p)
+    q = ops.sqrt(1.0 + 2.0 * e2**2 * big_p)
     r0_sq = 0.5 * a**2 * (1.0 + 1.0 / q) - big_p * (1.0 - e2) * z**2 / (q * (1.0 + q)) - 0.5 * big_p * p**2
-    r0 = -big_p * e2 * p / (1.0 + q) + math.sqrt(max(r0_sq, 0.0))
-    u = math.sqrt((p - e2 * r0) ** 2 + z**2)
-    v = math.sqrt((p - e2 * r0) ** 2 + (1.0 - e2) * z**2)
+    r0 = -big_p * e2 * p / (1.0 + q) + ops.sqrt(ops.maximum(r0_sq, 0.0))
+    u = ops.sqrt((p - e2 * r0) ** 2 + z**2)
+    v = ops.sqrt((p - e2 * r0) ** 2 + (1.0 - e2) * z**2)
     z0 = b**2 * z / (a * v)
     h = u * (1.0 - b**2 / (a * v))
-    return math.degrees(math.atan2(z + WGS84_EP2 * z0, p)), math.degrees(math.atan2(y, x)), h
+    return ops.degrees(ops.atan2(z + WGS84_EP2 * z0, p)), ops.degrees(ops.atan2(y, x)), h
 
 
-def _q_multiply1(p: tuple[float, ...], q: tuple[float, ...]) -> tuple[float, float, float, float]:
-    pw, px, py, pz = p
-    qw, qx, qy, qz = q
+def geodetic_to_ecef_point(lat_deg: float, lon_deg: float, h_m: float) -> tuple[float, float, float]:
+    """`geodetic_to_ecef` of one point, as plain floats [m]."""
+    x, y, z = _ecef_of(float(lat_deg), float(lon_deg), float(h_m), _MATH)
+    return x, y, z
+
+
+def q_multiply_tuple(p: Sequence[float], q: Sequence[float]) -> tuple[float, float, float, float]:
+    """`q_multiply` of two quaternions given as 4 floats (w first), as plain floats."""
+    return _q_product(p[0], p[1], p[2], p[3], q[0], q[1], q[2], q[3])
+
+
+def _q_product(pw: Any, px: Any, py: Any, pz: Any, qw: Any, qx: Any, qy: Any, qz: Any) -> tuple[Any, Any, Any, Any]:
+    """The Hamilton product's components (floats or arrays alike)."""
     return (
         pw * qw - px * qx - py * qy - pz * qz,
         pw * qx + px * qw + py * qz - pz * qy,
@@ -115,54 +146,22 @@ def _cross1(a: tuple[float, ...], b: tuple[float, ...]) -> tuple[float, float, f
 
 
 def geodetic_to_ecef(lat_deg: Any, lon_deg: Any, h_m: Any) -> FloatArray:
-    """Geodetic (lat [deg], lon [deg], ellipsoidal height [m]) to ECEF [m], shape (..., 3).
-
-    X = (N + h) cos(lat) cos(lon), Y = (N + h) cos(lat) sin(lon), Z = (N (1 - e^2) + h) sin(lat),
-    with N = a / sqrt(1 - e^2 sin^2(lat)) the prime vertical radius of curvature.
-    """
+    """Geodetic (lat [deg], lon [deg], ellipsoidal height [m]) to ECEF [m], shape (..., 3) (see `_ecef_of`)."""
     if isinstance(lat_deg, _SCALAR_TYPES) and isinstance(lon_deg, _SCALAR_TYPES) and isinstance(h_m, _SCALAR_TYPES):
-        return np.array(_geodetic_to_ecef1(float(lat_deg), float(lon_deg), float(h_m)))
-    lat = np.radians(_arr(lat_deg))
-    lon = np.radians(_arr(lon_deg))
-    h = _arr(h_m)
-    sin_lat = np.sin(lat)
-    n = WGS84_A_M / np.sqrt(1.0 - WGS84_E2 * sin_lat**2)
-    x = (n + h) * np.cos(lat) * np.cos(lon)
-    y = (n + h) * np.cos(lat) * np.sin(lon)
-    z = (n * (1.0 - WGS84_E2) + h) * sin_lat
+        return np.array(geodetic_to_ecef_point(float(lat_deg), float(lon_deg), float(h_m)), dtype=np.float64)
+    x, y, z = _ecef_of(_arr(lat_deg), _arr(lon_deg), _arr(h_m), _NUMPY)
     return np.stack(np.broadcast_arrays(x, y, z), axis=-1)
 
 
 def ecef_to_geodetic(ecef_m: Any) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """ECEF [m] (..., 3) to (lat [deg], lon [deg], ellipsoidal height [m]).
-
-    Closed form (Heikkinen 1982), exact to well below a millimetre for points near the Earth's
-    surface; no iteration.
-    """
+    """ECEF [m] (..., 3) to (lat [deg], lon [deg], ellipsoidal height [m]) (see `_geodetic_of`)."""
     one = _small(ecef_m, 3)
     if one is not None:
-        lat1, lon1, h1 = _ecef_to_geodetic1(*one)
+        lat1, lon1, h1 = _geodetic_of(one[0], one[1], one[2], _MATH)
         return np.float64(lat1), np.float64(lon1), np.float64(h1)  # type: ignore[return-value]
     p_ecef = _arr(ecef_m)
-    x, y, z = p_ecef[..., 0], p_ecef[..., 1], p_ecef[..., 2]
-    a, b, e2 = WGS84_A_M, WGS84_B_M, WGS84_E2
-    p = np.hypot(x, y)
-    f_term = 54.0 * b**2 * z**2
-    g = p**2 + (1.0 - e2) * z**2 - e2 * (a**2 - b**2)
-    c = e2**2 * f_term * p**2 / g**3
-    s = np.cbrt(1.0 + c + np.sqrt(c**2 + 2.0 * c))
-    k = s + 1.0 + 1.0 / s
-    big_p = f_term / (3.0 * k**2 * g**2)
-    q = np.sqrt(1.0 + 2.0 * e2**2 * big_p)
-    r0_sq = 0.5 * a**2 * (1.0 + 1.0 / q) - big_p * (1.0 - e2) * z**2 / (q * (1.0 + q)) - 0.5 * big_p * p**2
-    r0 = -big_p * e2 * p / (1.0 + q) + np.sqrt(np.maximum(r0_sq, 0.0))
-    u = np.sqrt((p - e2 * r0) ** 2 + z**2)
-    v = np.sqrt((p - e2 * r0) ** 2 + (1.0 - e2) * z**2)
-    z0 = b**2 * z / (a * v)
-    h = u * (1.0 - b**2 / (a * v))
-    lat = np.arctan2(z + WGS84_EP2 * z0, p)
-    lon = np.arctan2(y, x)
-    return np.degrees(lat), np.degrees(lon), h
+    lat, lon, h = _geodetic_of(p_ecef[..., 0], p_ecef[..., 1], p_ecef[..., 2], _NUMPY)
+    return lat, lon, h
 
 
 # --- ECEF <-> local ENU ---------------------------------------------------------------------
@@ -192,15 +191,15 @@ class LocalFrame:
         self.h0_m = h0_m
         self.origin_ecef_m = geodetic_to_ecef(lat0_deg, lon0_deg, h0_m)
         self.r_ecef_to_enu = ecef_to_enu_matrix(lat0_deg, lon0_deg)
-        self._origin1 = tuple(self.origin_ecef_m.tolist())  # for one point at a time (see _small)
+        # For one point at a time (see _small): the origin and the matrix's rows as plain floats.
+        self._origin1 = geodetic_to_ecef_point(lat0_deg, lon0_deg, h0_m)
         self._rows1 = tuple(tuple(row) for row in self.r_ecef_to_enu.tolist())
 
     def ecef_to_enu(self, ecef_m: Any) -> FloatArray:
         """ECEF [m] (..., 3) to ENU [m] (..., 3)."""
         one = _small(ecef_m, 3)
         if one is not None:
-            rel = [c - o for c, o in zip(one, self._origin1, strict=True)]
-            return np.array([r[0] * rel[0] + r[1] * rel[1] + r[2] * rel[2] for r in self._rows1])
+            return np.array(self._enu_of_ecef_point(one))
         d = _arr(ecef_m) - self.origin_ecef_m
         out: FloatArray = d @ self.r_ecef_to_enu.T
         return out
@@ -217,6 +216,15 @@ class LocalFrame:
     def enu_to_geodetic(self, enu_m: Any) -> tuple[FloatArray, FloatArray, FloatArray]:
         """ENU [m] (..., 3) to (lat [deg], lon [deg], ellipsoidal height [m])."""
         return ecef_to_geodetic(self.enu_to_ecef(enu_m))
+
+    def _enu_of_ecef_point(self, ecef: Sequence[float]) -> tuple[float, float, float]:
+        dx, dy, dz = (c - o for c, o in zip(ecef, self._origin1, strict=True))
+        e, n, u = (r[0] * dx + r[1] * dy + r[2] * dz for r in self._rows1)
+        return e, n, u
+
+    def geodetic_to_enu_point(self, lat_deg: float, lon_deg: float, h_m: float) -> tuple[float, float, float]:
+        """`geodetic_to_enu` of one point, as plain floats [m]."""
+        return self._enu_of_ecef_point(geodetic_to_ecef_point(lat_deg, lon_deg, h_m))
 
     def geodetic_to_enu(self, lat_deg: Any, lon_deg: Any, h_m: Any) -> FloatArray:
         """(lat [deg], lon [deg], ellipsoidal height [m]) to ENU [m] (..., 3)."""
@@ -263,19 +271,9 @@ def q_multiply(p: Any, q: Any) -> FloatArray:
     """Hamilton product p * q (..., 4), w first: rotating by q, then by p."""
     p1, q1 = _small(p, 4), _small(q, 4)
     if p1 is not None and q1 is not None:
-        return np.array(_q_multiply1(p1, q1))
+        return np.array(q_multiply_tuple(p1, q1))
     a, b = np.broadcast_arrays(_arr(p), _arr(q))
-    pw, px, py, pz = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
-    qw, qx, qy, qz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-    return np.stack(
-        [
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ],
-        axis=-1,
-    )
+    return np.stack(_q_product(*(a[..., i] for i in range(4)), *(b[..., i] for i in range(4))), axis=-1)
 
 
 def q_conjugate(q: Any) -> FloatArray:

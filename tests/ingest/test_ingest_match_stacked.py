@@ -4,7 +4,6 @@ same result with the stacked DP as with the row-by-row DP alone, on a card where
 
 from __future__ import annotations
 
-import random
 from pathlib import Path
 from typing import Any
 
@@ -12,6 +11,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from synthetic_cards import capture
 
 from icgt.geotag import FrameRecord
 from icgt.ingest.match import ImageTime, match_times
@@ -111,46 +111,12 @@ def test_fractional_costs_stay_with_the_row_by_row_dp() -> None:
 def _pass_card(seed: int) -> tuple[list[FrameRecord], list[ImageTime]]:
     """Eight passes of 40 shots at 5 fps, 1 s EXIF times: windows chain over each pass (a segment of ~40
     images each), with missed triggers, manual shots and images without a time."""
-    rng = random.Random(seed)
-    frames: list[FrameRecord] = []
-    images: list[ImageTime] = []
-    t = 10.0
-    for _ in range(8):
-        for _ in range(40):
-            t += 0.2 + rng.gauss(0.0, 0.002)
-            kinds = ["trigger"] + (["manual"] if rng.random() < 0.03 else [])
-            for kind in kinds:
-                te = t if kind == "trigger" else t + 0.1
-                missed = kind == "trigger" and rng.random() < 0.03
-                flags = ["feedback_missing", "no_feedback"] if missed else ["unsolicited"] if kind == "manual" else []
-                frames.append(
-                    FrameRecord(
-                        frame_seq=len(frames) + 1,
-                        image_index=len(frames),
-                        camera_id=0,
-                        device_flags=0,
-                        trigger_device_us=0,
-                        start_device_us=round(te * 1e6),
-                        mid_device_us=round(te * 1e6) + 500,
-                        duration_us=1000,
-                        mid_host_ns=round(te * 1e9) + 500_000,
-                        mid_host_uncertainty_ns=300_000,
-                        time_source="pps",
-                        flags=flags,
-                        position_source="gps_3d",
-                        fix_type=3,
-                        pose_gap_before_ms=1.0,
-                        pose_gap_after_ms=1.0,
-                        mid_utc_us=round((1.8e9 + te) * 1e6) + 500,
-                    )
-                )
-                if missed:
-                    continue
-                camera = 1.8e9 + 3600.37 + te * (1 + 30e-6) + rng.gauss(0.0, 0.002)
-                path = Path(f"IMG{len(images):05d}.JPG")
-                untimed = rng.random() < 0.02
-                images.append(ImageTime(path, None, None) if untimed else ImageTime(path, float(camera // 1.0), 1.0))
-        t += rng.uniform(20.0, 40.0)
+    params = {
+        "seed": seed, "dt": 0.2, "res": 1.0, "offset": 3600.37, "drift": 30e-6, "wired": True, "passes": 8,
+        "shots": 40, "pause": 30.0, "jitter": 0.002, "p_miss": 0.03, "p_manual": 0.03, "p_untimed": 0.02,
+        "test_shot": False,
+    }  # fmt: skip
+    frames, images, _ = capture(params)
     return frames, images
 
 

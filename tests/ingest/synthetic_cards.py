@@ -1,0 +1,70 @@
+"""Synthetic captures for the matching tests: frames as the recorder logs them and the camera card's times."""
+
+from __future__ import annotations
+
+import random
+from pathlib import Path
+from typing import Any
+
+from icgt.geotag import FrameRecord
+from icgt.ingest.match import ImageTime
+
+
+def capture(params: dict[str, Any]) -> tuple[list[FrameRecord], list[ImageTime], dict[Path, int | None]]:
+    """A random capture: triggered passes with pauses, jitter, missed triggers, manual shots, untimed
+    images, a test shot; wired (the device sees every exposure) or blind (no hot-shoe feedback)."""
+    rng = random.Random(params["seed"])
+    dt, res, wired = params["dt"], params["res"], params["wired"]
+    events: list[tuple[float, str, int]] = []
+    t, index = 10.0, 0
+    for _ in range(params["passes"]):
+        for _ in range(params["shots"]):
+            t += dt + rng.gauss(0.0, params["jitter"])
+            index += 1
+            events.append((t, "trigger", index))
+            if rng.random() < params["p_manual"]:
+                events.append((t + rng.uniform(0.03, dt - 0.03), "manual", 0))
+        t += params["pause"]
+    if params["test_shot"]:
+        events.append((rng.uniform(-200.0, 5.0), "test_shot", 0))
+    events.sort()
+    frames: list[FrameRecord] = []
+    images: list[ImageTime] = []
+    truth: dict[Path, int | None] = {}
+    for te, kind, idx in events:
+        missed = kind == "trigger" and rng.random() < params["p_miss"]
+        frame = None
+        if kind == "trigger" or (kind == "manual" and wired):
+            flags = [] if wired else ["no_feedback"]
+            if missed and wired:
+                flags = ["feedback_missing", "no_feedback"]
+            if kind == "manual":
+                flags = ["unsolicited"]
+            frame = FrameRecord(
+                frame_seq=len(frames) + 1,
+                image_index=idx,
+                camera_id=0,
+                device_flags=0,
+                trigger_device_us=0,
+                start_device_us=round(te * 1e6),
+                mid_device_us=round(te * 1e6) + 500,
+                duration_us=1000,
+                mid_host_ns=round(te * 1e9) + 500_000,
+                mid_host_uncertainty_ns=rng.choice([300_000, 900_000]),
+                time_source="system_time",
+                flags=flags,
+                position_source="gps_3d",
+                fix_type=3,
+                pose_gap_before_ms=1.0,
+                pose_gap_after_ms=1.0,
+                mid_utc_us=round((1.8e9 + te) * 1e6) + 500,
+            )
+            frames.append(frame)
+        if missed:
+            continue
+        camera = 1.8e9 + te * (1 + params["drift"]) + params["offset"] + rng.gauss(0.0, 0.002)
+        path = Path(f"IMG{len(images):05d}.JPG")
+        untimed = rng.random() < params["p_untimed"]
+        images.append(ImageTime(path, None, None) if untimed else ImageTime(path, (camera // res) * res, res))
+        truth[path] = frame.frame_seq if frame is not None else None
+    return frames, images, truth

@@ -127,3 +127,22 @@ def test_one_vector_paths_equal_the_array_paths(seed: int) -> None:
     assert np.allclose(g.q_slerp(q0, q1, t), g.q_slerp(q0[None, :], q1[None, :], np.array([t]))[0], atol=1e-12)
     near = qn + 1e-12  # the small-angle branch
     assert np.allclose(g.q_slerp(qn, near, t), g.q_slerp(qn[None, :], near[None, :], np.array([t]))[0], atol=1e-12)
+
+
+def test_conversions_agree_with_proj() -> None:
+    """WGS84 geodetic <-> ECEF, one point and arrays, against PROJ (through rasterio, EPSG:4979 -> EPSG:4978)."""
+    from rasterio.crs import CRS
+    from rasterio.warp import transform
+
+    rng = np.random.default_rng(7)
+    lat, lon, h = rng.uniform(-85, 85, 50), rng.uniform(-180, 180, 50), rng.uniform(-400, 9000, 50)
+    x, y, z = transform(CRS.from_epsg(4979), CRS.from_epsg(4978), lon.tolist(), lat.tolist(), zs=h.tolist())
+    proj = np.c_[x, y, z]
+    assert np.abs(g.geodetic_to_ecef(lat, lon, h) - proj).max() < 1e-6  # [m]
+    one = np.array([g.geodetic_to_ecef(float(a), float(b), float(c)) for a, b, c in zip(lat, lon, h, strict=True)])
+    assert np.abs(one - proj).max() < 1e-6
+    back = np.column_stack(g.ecef_to_geodetic(proj))
+    assert np.abs(back[:, :2] - np.c_[lat, lon]).max() < 1e-9 and np.abs(back[:, 2] - h).max() < 1e-6  # [deg], [m]
+    for i in range(len(lat)):
+        p_lat, p_lon, p_h = g.ecef_to_geodetic(tuple(proj[i]))
+        assert abs(p_lat - lat[i]) < 1e-9 and abs(p_lon - lon[i]) < 1e-9 and abs(p_h - h[i]) < 1e-6

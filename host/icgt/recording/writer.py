@@ -304,9 +304,10 @@ class McapRecorder:
 
     def write_many(self, messages: Sequence[tuple[str, bytes, int]]) -> None:
         """Encoded messages (topic, data, publish time [ns since the Unix epoch]) queued together, in order,
-        with one log time: the `clock` when queued. What a recorder's worker wrote in one step goes here at
-        its end: one lock, one clock reading and one hand-off instead of one each per message (about half
-        of the cost of a small message). Topics must be registered; raises RecordingError as `write` does.
+        each with its log time: the `clock` when queued, read for each message as `write` does (readers and
+        live clients may tell messages apart by it). What a recorder's worker wrote in one step goes here at
+        its end: one lock and one hand-off instead of one each per message (about half of the cost of a small
+        message). Topics must be registered; raises RecordingError as `write` does.
         """
         if not messages:
             return
@@ -317,20 +318,21 @@ class McapRecorder:
             if entry is None:
                 raise RecordingError(f"topic {topic}: register it before writing encoded messages")
             entries.append(entry)
-        stamped: list[int] = []
+        stamps: list[int] = []
 
         def make() -> list[_Item]:
-            now = self._clock()
-            stamped.append(now)
+            clock, item = self._clock, self._message_item
+            stamps.extend(clock() for _ in messages)
             return [
-                self._message_item(entry, now, publish, data)
-                for entry, (_, data, publish) in zip(entries, messages, strict=True)
+                item(entry, now, publish, data)
+                for entry, now, (_, data, publish) in zip(entries, stamps, messages, strict=True)
             ]
 
         self._enqueue(make, len(messages))
-        log_time = stamped[-1] if stamped else self._clock()
+        if not stamps:  # not queued (see _enqueue): the sinks still see each message, stamped now
+            stamps.extend(self._clock() for _ in messages)
         for sink in self._sinks:
-            for topic, data, publish in messages:
+            for (topic, data, publish), log_time in zip(messages, stamps, strict=True):
                 _feed_sink(sink.message, topic, data, log_time, publish)
 
     def write_encoded(

@@ -73,6 +73,24 @@ def test_without_an_origin_the_vehicle_is_only_on_the_map() -> None:
     assert out[0][1].position_covariance_type == LocationFix.UNKNOWN
 
 
+def test_base_link_from_the_first_attitude_after_the_origin_is_fixed() -> None:
+    """The origin is fixed (at the first frame) between a position and the next attitude: that attitude already
+    has its /tf, at the last position (it used to wait for the next GLOBAL_POSITION_INT)."""
+    origin: list[Any] = [None]
+    out: list[tuple[str, Any, int]] = []
+    views = FoxgloveViews(GeotagConfig(), lambda t, m, ns: out.append((t, m, ns)), lambda ns: ns, lambda: origin[0], 1)
+    views.on_mavlink(
+        _packed(mav.MAVLink_global_position_int_message(0, 378814000, 1277299000, 88500, 0, 0, 0, 0, 0)), 1
+    )
+    views.on_mavlink(_packed(mav.MAVLink_attitude_quaternion_message(0, 1, 0, 0, 0, 0, 0, 0)), 2)
+    origin[0] = ORIGIN
+    views.on_mavlink(_packed(mav.MAVLink_attitude_quaternion_message(0, 1, 0, 0, 0, 0, 0, 0)), 3)
+    assert [(t, ns) for t, _, ns in out] == [(layout.VEHICLE_LOCATION, 1), (layout.TF, 3)]
+    tf = out[1][1].transforms[0]
+    enu = LocalFrame(*ORIGIN).geodetic_to_enu(37.8814, 127.7299, 88.5)
+    assert [tf.translation.x, tf.translation.y, tf.translation.z] == pytest.approx(list(enu), abs=1e-9)
+
+
 def test_the_start_gives_the_mount_and_the_calibration() -> None:
     cfg = GeotagConfig(
         focal_length_mm=24.0, sensor_width_mm=36.0, image_width_px=6000, image_height_px=4000,

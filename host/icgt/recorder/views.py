@@ -143,6 +143,7 @@ class FoxgloveViews:
         self._lever_frd = tuple(float(c) for c in camera.lever_arm_body_m)
         self._local: tuple[tuple[float, float, float], LocalFrame] | None = None  # (origin, its ENU frame)
         self._position_enu: tuple[float, float, float] | None = None
+        self._last_fix: tuple[float, float, float] | None = None  # the last GLOBAL_POSITION_INT (lat, lon, alt)
         self._accuracy_m: tuple[float, float] | None = None
         self.counts: dict[str, int] = {}
 
@@ -200,10 +201,15 @@ class FoxgloveViews:
             fix.position_covariance.extend([0.0] * 9)
             fix.position_covariance_type = LocationFix.UNKNOWN
         self._out(layout.VEHICLE_LOCATION, fix, rx_ns)
+        self._last_fix = (lat, lon, alt)
         self._position_enu = self._enu(lat, lon, alt)
 
     def _attitude(self, msg: Any, rx_ns: int) -> None:
         q = (float(msg.q1), float(msg.q2), float(msg.q3), float(msg.q4))  # w, x, y, z: body FRD -> NED
+        if self._position_enu is None and self._last_fix is not None:
+            # The ENU origin was fixed (at the first frame) after the last position came: place base_link
+            # there now, not only from the next GLOBAL_POSITION_INT (an attitude between the two had no /tf).
+            self._position_enu = self._enu(*self._last_fix)
         if self._position_enu is None or not _finite(*q) or not 0.5 < math.sqrt(sum(c * c for c in q)) < 1.5:
             return
         pose = _flu_to_enu_fast(q)

@@ -676,3 +676,72 @@ def test_without_reconnect_the_link_stays_down(host, device):
         time.sleep(0.6)
         assert host.events_of("connected") == []
         assert not link.connected
+
+
+# --------------------------------------------------------------------------- pumped by the owner
+def test_pumped_link_hands_the_stream_on_from_pump_and_the_reader_sends_and_stamps_the_time_syncs(host, device):
+    """The recorder's way: the owner's thread reads the stream with pump() every 50 ms; the reader thread
+    sends a TIME_SYNC every time_sync_interval_s and stamps each reply as it comes (not at a pump), and
+    otherwise reads nothing: every STATUS arrives, in order, each exactly once, and the reader's reads are
+    the exchanges' (a few per exchange), not one per batch_s."""
+    stop = threading.Event()
+    sent = 0
+
+    def stream() -> None:  # a STATUS every 2 ms, as the device's sensors stream
+        nonlocal sent
+        while not stop.wait(0.002):
+            device.send(Status(t_us=device.now_us()))
+            sent += 1
+
+    with started(host, device, batch_s=0.02) as link:
+        assert link.set_pumped(True) and link.pumped
+        link.time_sync_interval_s = 0.1
+        streamer = threading.Thread(target=stream, daemon=True)
+        streamer.start()
+        pumped_bytes = 0
+        try:
+            time.sleep(0.3)
+            reads0, syncs0 = link.reads, len(host.syncs)
+            t_end = time.monotonic() + 2.0
+            while time.monotonic() < t_end:
+                pumped_bytes += link.pump()
+                time.sleep(0.05)
+            stop.set()
+            streamer.join()
+            time.sleep(0.1)
+            while link.pump():
+                pass
+            reads, syncs = link.reads - reads0, len(host.syncs) - syncs0
+        finally:
+            stop.set()
+        assert pumped_bytes > 0
+        assert 12 <= syncs <= 25, f"{syncs} TIME_SYNC exchanges in 2 s at 0.1 s"
+        # 40 pumps; the reader reads for its exchanges only: far fewer than the 100 of a 20 ms batching reader
+        assert reads <= 40 + 4 * syncs, f"{reads} reads in 2 s"
+    statuses = [r for r, _ in host.messages if isinstance(r.message, Status)]
+    seqs = [r.seq for r in statuses]
+    assert len(statuses) == sent and seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
+    for s in host.syncs[syncs0:]:
+        assert s.round_trip_ns < 20_000_000, f"round trip {s.round_trip_ns / 1e6:.1f} ms: stamped at a pump"
+
+
+def test_a_link_not_pumped_ignores_pump_and_unpumped_reads_on_its_own(host, device):
+    with started(host, device, batch_s=0.02) as link:
+        assert link.pump() == 0  # not pumped: the reader reads
+        device.send(Status(t_us=device.now_us()))
+        host.wait(lambda: host.messages_of(Status), why="STATUS read by the reader")
+        assert link.set_pumped(True)
+        assert not link.set_pumped(False) and not link.pumped
+        device.send(Status(t_us=device.now_us()))
+        host.wait(lambda: len(host.messages_of(Status)) == 2, why="STATUS read by the reader again")
+
+
+def test_a_pumped_link_reports_an_unplug_from_the_pump(host, device):
+    with started(host, device, batch_s=0.02) as link:
+        link.set_pumped(True)
+        device.port.close()
+        deadline = time.monotonic() + 5.0
+        while not host.events_of("disconnected") and time.monotonic() < deadline:
+            link.pump()
+            time.sleep(0.02)
+        assert host.events_of("disconnected")

@@ -56,3 +56,37 @@ def test_a_datagram_is_stamped_with_its_arrival_while_the_reader_is_busy() -> No
         link.stop()
     assert "rx_ns" in got
     assert got["rx_ns"] - sent_ns < 50_000_000, f"stamped {(got['rx_ns'] - sent_ns) / 1e6:.0f} ms after it was sent"
+
+
+def test_an_owner_pumped_link_has_no_threads_and_pump_hands_on_each_datagram_with_its_arrival() -> None:
+    """owner_pumps (the recorder's worker reads the UDP link): no reader or service thread; pump() reads
+    every datagram waiting, in order, each stamped with its arrival (here 300 ms before the pump), and runs
+    the service step (the autopilot seen, a TIMESYNC request sent)."""
+    port = _free_udp_port()
+    sent_ts: list[int] = []
+    link = MavlinkLink(LinkConfig(url=f"udpin:127.0.0.1:{port}", owner_pumps=True), on_timesync_sent=sent_ts.append)
+    got: list[MavlinkMessage] = []
+    link.subscribe(got.append)
+    before = {t.name for t in threading.enumerate()}
+    link.start()
+    try:
+        assert link.pumped and link.running
+        assert not {t.name for t in threading.enumerate()} - before, "an owner-pumped link started a thread"
+        assert link.pump() == 0
+        mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+            hb = mav.heartbeat_encode(mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4)
+            sent_ns = time.monotonic_ns()
+            tx.sendto(hb.pack(mav), ("127.0.0.1", port))
+            for i in range(20):
+                tx.sendto(mav.system_time_encode(0, 1000 + i).pack(mav), ("127.0.0.1", port))
+            time.sleep(0.3)
+            pumped_ns = time.monotonic_ns()
+            assert link.pump() == 21
+    finally:
+        link.stop()
+    assert not link.pumped and link.pump() == 0
+    assert [m.type for m in got] == ["HEARTBEAT"] + ["SYSTEM_TIME"] * 20
+    assert [m.msg.time_boot_ms for m in got[1:]] == list(range(1000, 1020))
+    assert all(sent_ns <= m.rx_ns < sent_ns + 100_000_000 < pumped_ns for m in got), "stamped at the pump"
+    assert link.state.value == "up" and sent_ts, "the service step did not run"

@@ -50,7 +50,11 @@ HOST_RECEIVED_PERIOD_NS = 1_000_000_000
 # two files, never a loss).
 HOST_RECEIVED_LAG_NS = 3_000_000_000
 PROMPT_WINDOW_NS = 100_000_000
-"""After each send that awaits an answer, the reader reads as soon as bytes arrive for this long [ns] (its stamp)."""
+"""After each send that awaits an answer, the reader reads as soon as bytes arrive for this long [ns] (its stamp),
+or until every answer awaited has come (see _dispatch: a TIME_SYNC_REPLY comes within a millisecond or two)."""
+PUMPED_PAUSE_S = 0.25
+"""While the owner pumps (`pump()`), the reader's pause between reads when nothing is awaited or due [s]: it
+only reads what no pump took (the owner stopped pumping), sends the TIME_SYNCs and waits for answers."""
 CATCH_UP_TIMEOUT_S = 0.02
 """How long a TIME_SYNC request waits for a batching reader to take what it held back [s]."""
 
@@ -162,6 +166,14 @@ class DeviceLink:
         self._received_marks: list[tuple[int, int]] = []  # (host ns, HOST_RECEIVED value) not sent yet
         self._next_mark_ns = 0
         self.reads = 0  # read calls that returned bytes (what batching saves)
+        # TIME_SYNC sent by the reader itself, every this many seconds (see _time_sync_if_due); None: only
+        # when the owner calls request_time_sync(). The owner may change it at any time (a float, set whole).
+        self.time_sync_interval_s: float | None = None
+        self._next_sync_ns = 0  # the reader's next TIME_SYNC [ns, host monotonic]; 0: at once (after a connect)
+        # One reader of the port at a time, the reader thread or the owner's pump(): the decoder, the RESEND
+        # tracker and the order of the messages handed on are theirs while they hold it.
+        self._rx_lock = threading.Lock()
+        self._pumped = False  # the owner calls pump() (set_pumped): the reader only waits for answers
 
     # ---------------------------------------------------------------- lifecycle
     def start(self) -> Hello:
@@ -241,7 +253,8 @@ class DeviceLink:
                 # HOST_RECEIVED has none, and RESEND's retransmitted frames carry device time: those
                 # leave the reader batching (each kept it prompt for 100 ms, one read per USB frame).
                 self._prompt_until_ns = time.monotonic_ns() + PROMPT_WINDOW_NS
-                self._prompt.set()
+                if threading.current_thread() is not self._thread:  # the reader itself is awake already
+                    self._prompt.set()
             if isinstance(message, TimeSync):
                 # The send time is taken after framing, right before the bytes go to the kernel: the
                 # field in the message only identifies the request (every microsecond of host-side
@@ -339,30 +352,99 @@ class DeviceLink:
             f"({self.bytes_received} bytes received, {stats.rejected} frames rejected): is it an ICGT device?"
         )
 
+    # ---------------------------------------------------------------- pumped by the owner
+    def set_pumped(self, on: bool) -> bool:
+        """From now on the owner reads the port with `pump()` every few tens of ms (on: True) or no longer
+        (False: the reader reads everything again). Honoured on a port with a file descriptor (a serial
+        device, socket://; not loop://). Returns whether the link is pumped now.
+
+        While pumped, the reader thread sleeps between the TIME_SYNCs it sends (time_sync_interval_s) and
+        reads only while an answer is awaited: the device's stream is read by the owner's periodic thread
+        that handles it anyway, which saves the reader's wake-up every batch_s. Stamps: a message read by a
+        pump is stamped when read (late by up to the pump period, as a batching reader's are by batch_s);
+        what the clocks use is not, the replies are read by the reader as they arrive."""
+        port = self._port
+        self._pumped = bool(on) and self._batch_s > 0.0 and port is not None and _port_fd(port) is not None
+        self._prompt.set()  # out of the current pause: the next one is the new mode's
+        return self._pumped
+
+    @property
+    def pumped(self) -> bool:
+        return self._pumped
+
+    def pump(self) -> int:
+        """Read and hand on (on_message, on_time_sync, on_event, on this thread) whatever the device sent
+        since the last read; returns the bytes read. Does nothing when not pumped, when the link is down or
+        while the reader thread is reading (an answer is awaited: what it reads is handed on as usual)."""
+        if not self._pumped or not self._connected.is_set() or not self._rx_lock.acquire(blocking=False):
+            return 0
+        try:
+            port = self._port
+            fd = _port_fd(port) if port is not None else None
+            if port is None or fd is None:
+                return 0
+            try:
+                data = os.read(fd, 65536)
+            except BlockingIOError:  # nothing waiting
+                data = b""
+            except OSError as exc:
+                self._link_down(str(exc))
+                return 0
+            else:
+                if not data:  # end of file: the device went away (a closed socket, a vanished pty)
+                    self._link_down("the device closed the connection")
+                    return 0
+            self._took(data, time.monotonic_ns())
+            return len(data)
+        finally:
+            self._rx_lock.release()
+
+    # ---------------------------------------------------------------- the reader thread
     def _read_loop(self) -> None:
         while not self._stop.is_set():
             port = self._port
             if port is None or not self._connected.is_set():
                 self._try_reopen()
                 continue
-            try:
-                if self._batch_s > 0.0 and time.monotonic_ns() < self._prompt_until_ns:
-                    self._caught_up.set()  # nothing held back: about to wait in select() for the reply
-                data = self._read_chunk(port)
-                # Stamped after the last byte of the chunk is in hand: a frame that completes in it
-                # arrived no later than this (a stamp taken after the first byte could precede it).
-                host_rx_ns = time.monotonic_ns()
-            except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
-                self._link_down(str(exc))
-                continue
-            if data:
-                self.bytes_received += len(data)
-                self.reads += 1
-                self._feed(data, host_rx_ns)
-            self.resend.tick()
-            self._report_received(host_rx_ns)
-            if data and self._batch_s > 0.0:
+            with self._rx_lock:
+                try:
+                    if self._batch_s > 0.0 and time.monotonic_ns() < self._prompt_until_ns:
+                        self._caught_up.set()  # nothing held back: about to wait in select() for the reply
+                    data = self._read_chunk(port)
+                    # Stamped after the last byte of the chunk is in hand: a frame that completes in it
+                    # arrived no later than this (a stamp taken after the first byte could precede it).
+                    host_rx_ns = time.monotonic_ns()
+                except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+                    self._link_down(str(exc))
+                    continue
+                self._took(data, host_rx_ns)
+                self._time_sync_if_due(host_rx_ns)
+            if (data or self._pumped) and self._batch_s > 0.0:
                 self._pause(host_rx_ns)
+
+    def _took(self, data: bytes, host_rx_ns: int) -> None:
+        """What one read gave, handed on; then the RESEND tracker's and HOST_RECEIVED's turn (rx lock held)."""
+        if data:
+            self.bytes_received += len(data)
+            self.reads += 1
+            self._feed(data, host_rx_ns)
+        self.resend.tick()
+        self._report_received(host_rx_ns)
+
+    def _time_sync_if_due(self, now_ns: int) -> None:
+        """With `time_sync_interval_s` set, send a TIME_SYNC when one is due, from this (the reader) thread.
+
+        It has just read and decoded everything that had arrived, so it goes back to select() with nothing
+        held back, and the reply is stamped as soon as it comes; the reads stay prompt until then (send()).
+        Sent here rather than by another thread, an exchange costs one wake-up (the reply's), not the four of
+        a request_time_sync() from elsewhere (that thread's timer, waking the reader from its pause, the
+        catch-up it waits for, the reply), each of which costs as much CPU as handling dozens of messages."""
+        interval = self.time_sync_interval_s
+        if interval is None or now_ns < self._next_sync_ns:
+            return
+        self._next_sync_ns = now_ns + int(max(interval, 0.001) * 1e9)
+        with contextlib.suppress(DeviceLinkError):  # down: the reconnect restarts the schedule
+            self.send(TimeSync(host_t_ns=time.monotonic_ns()))
 
     def _send_quietly(self, message: Message) -> None:
         self.send(message)  # DeviceLinkError when down: the tracker asks again later
@@ -403,7 +485,12 @@ class DeviceLink:
         device's own messages carry device time. A late stamp only makes their host_rx_ns later."""
         if now_ns < self._prompt_until_ns:
             return
-        self._prompt.wait(self._batch_s)
+        wait_s = self._batch_s
+        if self._pumped:
+            wait_s = PUMPED_PAUSE_S
+            if self.time_sync_interval_s is not None:  # awake again for the next TIME_SYNC
+                wait_s = min(wait_s, max(0.0, (self._next_sync_ns - now_ns) / 1e9))
+        self._prompt.wait(wait_s)
         self._prompt.clear()
 
     @staticmethod
@@ -418,11 +505,9 @@ class DeviceLink:
         the socket is readable (1), so read(1) + read(in_waiting) returned 2 bytes per call.
         Other URLs (loop://, rfc2217:// with its telnet layer) go through pyserial.
         """
-        fd = getattr(port, "fd", None)
+        fd = _port_fd(port)
         is_socket = isinstance(port, protocol_socket.Serial)
-        if is_socket:
-            fd = port.fileno()
-        if isinstance(fd, int) and fd >= 0:
+        if fd is not None:
             ready, _, _ = select.select([fd], [], [], 0.05)
             if not ready:
                 return b""
@@ -517,11 +602,19 @@ class DeviceLink:
         with self._tx_lock:
             self._port = port
         self._connected.set()
+        self._next_sync_ns = 0  # resynchronise at once
         self.resend.link_restored()
         outage = now - self._down_since_ns
         self._on_event(
             DeviceLinkEvent("connected", now, f"device link back after {outage / 1e9:.2f} s", outage_ns=outage)
         )
+
+
+def _port_fd(port: serial.SerialBase) -> int | None:
+    """The file descriptor to select() and read() on: a POSIX serial port's or a socket:// port's; None for
+    the others (loop://, rfc2217://), which are read through pyserial."""
+    fd = port.fileno() if isinstance(port, protocol_socket.Serial) else getattr(port, "fd", None)
+    return fd if isinstance(fd, int) and fd >= 0 else None
 
 
 def port_holders(path: str) -> list[tuple[int, str]]:

@@ -158,6 +158,9 @@ class LinkConfig:
     read_batch_s: float = 0.0
     # The service thread (liveness, TIMESYNC and stream-rate requests) runs this often [s].
     service_period_s: float = 0.01
+    # UDP with kernel receive timestamps only: no reader or service thread, the owner calls `MavlinkLink.pump()`
+    # every few tens of ms from its own thread (see icgt.mavlink.link). Other transports ignore it.
+    owner_pumps: bool = False
 
     @property
     def effective_autopilot_system(self) -> int:

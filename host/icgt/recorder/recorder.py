@@ -2,12 +2,17 @@
 
 The recorder is I/O around one `icgt.sync.Synchroniser`: the device link (serial), the MAVLink
 link (autopilot and ground station), the MAVLink camera component, the MCAP log and the local
-control socket. Threads: the device reader and the MAVLink reader stamp what arrives and put it
-in one inbox (never blocking); one worker thread takes each input from the inbox, writes it to
-the log and then feeds it to the synchroniser, in that order, polls the synchroniser for frames,
-schedules TIME_SYNC and writes clock estimates and counters. Because the log holds every input in
-the order the synchroniser saw it, `icgt.ingest.recompute` gives back the same frames. The camera
-component and the control socket call start/stop/shoot, which talk to the device.
+control socket. Threads: one worker reads both links at the start of each step (`pump()`: the
+device's stream, and the MAVLink datagrams, which carry the kernel's arrival stamps), putting what
+arrived in one inbox, and then takes each input from the inbox, writes it to the log and feeds it to
+the synchroniser, in that order, polls the synchroniser for frames and writes clock estimates and
+counters. The device link's reader thread sends the TIME_SYNC requests at the rate the worker sets and
+reads the device's answers the moment they arrive (their stamps are what the clock filter uses); on a
+serial or TCP MAVLink link the link's reader thread stamps and hands on what arrives. Waking a thread
+costs as much CPU as handling dozens of messages: this way there are about 40 wake-ups a second.
+Because the log holds every input in the order the synchroniser saw it, `icgt.ingest.recompute` gives
+back the same frames. The camera component and the control socket call start/stop/shoot, which talk
+to the device.
 """
 
 from __future__ import annotations
@@ -165,7 +170,6 @@ class Recorder:
         self._batch_owner = 0
         self._log_handler: McapLogHandler | None = None
         self._registered: set[str] = set()
-        self._next_sync_ns = 0
         self._next_clock_log_ns = 0
         self._snapshot: dict[str, Any] = {}
         self._waiting_for_device = False
@@ -217,6 +221,9 @@ class Recorder:
             self._abandon(path)
             raise
         self._tuning.apply()  # GIL switch interval and garbage collector (see icgt.recorder.tuning)
+        self._schedule_time_sync()
+        assert self.device is not None
+        self.device.set_pumped(True)  # its stream read by the worker's steps (_drain), see DeviceLink.set_pumped
         self._worker = threading.Thread(target=self._work, name="icgt-recorder", daemon=True)
         self._worker.start()
         self._starting.clear()
@@ -324,6 +331,9 @@ class Recorder:
         time.sleep(0.3)  # the last exposures' feedback and telemetry are still on their way
         if self._worker is not None and self._worker is not threading.current_thread():
             self._worker.join(timeout=3.0)
+        if self.device is not None:
+            self.device.time_sync_interval_s = None  # no exchange after the worker's last step
+            self.device.set_pumped(False)  # its reader reads everything again until it stops
         with self._step():
             self._drain(limit=None)
             self._emit(self.sync.poll(time.monotonic_ns(), flush=True))
@@ -504,8 +514,6 @@ class Recorder:
         level = logging.INFO if event.kind == "connected" else logging.WARNING
         log.log(level, "device link: %s", event.detail)
         self._write_event("device", event.kind, event.detail, event.host_ns, event.count, event.outage_ns)
-        if event.kind == "connected":
-            self._next_sync_ns = 0  # resynchronise at the fast rate
 
     def _on_time_sync(self, sample: TimeSyncSample) -> None:
         status = self.sync.on_exchange(sample.host_tx_ns, sample.device_rx_us, sample.device_tx_us, sample.host_rx_ns)
@@ -596,6 +604,7 @@ class Recorder:
                 signing_key=self._signing_key,
                 read_batch_s=_READ_BATCH_S,
                 service_period_s=_MAVLINK_SERVICE_PERIOD_S,
+                owner_pumps=True,  # UDP: read by the worker's steps (_drain), see icgt.mavlink.link
             ),
             on_event=lambda event: self._inbox.append((_MAVLINK_EVENT, event, event.host_ns)),
             on_timesync_sent=lambda tx_ns: self._inbox.append((_TIMESYNC_SENT, tx_ns, tx_ns)),
@@ -667,7 +676,7 @@ class Recorder:
 
     # ------------------------------------------------------------------ worker
     def _work(self) -> None:
-        while not self._stop.wait(self._work_wait_s()):
+        while not self._stop.wait(_WORK_PERIOD_S):
             try:
                 with self._step():
                     self._drain(limit=_DRAIN_MAX)
@@ -675,14 +684,19 @@ class Recorder:
             except Exception:  # the worker must outlive any bug: frames keep being emitted
                 log.exception("recorder worker error (recording continues)")
 
-    def _work_wait_s(self) -> float:
-        """Until the next step [s]: _WORK_PERIOD_S, or less when a TIME_SYNC is due (the exchange rate the
-        clock filter asks for, not rounded up to the period)."""
-        if self.device is None or not self.device.connected:
-            return _WORK_PERIOD_S
-        return min(_WORK_PERIOD_S, max(0.001, (self._next_sync_ns - time.monotonic_ns()) / 1e9))
+    def _schedule_time_sync(self) -> None:
+        """The device reader sends the TIME_SYNC requests (DeviceLink.time_sync_interval_s: one wake-up per
+        exchange) at the rate the clock filter asks for, set again at every step (fast until settled, and
+        after a reboot or a gap; dithered)."""
+        if self.device is not None and not self._stop.is_set():
+            self.device.time_sync_interval_s = self.sync.next_exchange_interval_s()
 
     def _drain(self, limit: int | None) -> None:
+        # What arrived since the last step, into the inbox: the links this thread reads (see the module doc).
+        if self.device is not None:
+            self.device.pump()
+        if self.mavlink is not None:
+            self.mavlink.pump()
         inbox = self._inbox
         n = 0
         while inbox and (limit is None or n < limit):
@@ -724,13 +738,7 @@ class Recorder:
                 "pending_frames": sync.pending_frames,
                 "sync": sync.counters(),
             }
-        self._commit_writes()  # before the TIME_SYNC, whose send waits for the device reader
-        if self.device is not None and self.device.connected and now >= self._next_sync_ns:
-            # Last, so that the worker sleeps while the reply comes back: the device reader stamps it as soon
-            # as it has the GIL, which a worker building frames or records would hold for milliseconds.
-            with contextlib.suppress(DeviceLinkError):
-                self.device.request_time_sync()
-            self._next_sync_ns = now + int(self.sync.next_exchange_interval_s() * 1e9)
+        self._schedule_time_sync()
 
     def _write_counters(self, now: int) -> None:
         record: dict[str, Any] = {"host_ns": now, "sync": self.sync.counters()}

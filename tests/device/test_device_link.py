@@ -745,3 +745,14 @@ def test_a_pumped_link_reports_an_unplug_from_the_pump(host, device):
             link.pump()
             time.sleep(0.02)
         assert host.events_of("disconnected")
+
+
+def test_a_pumped_link_to_a_silent_device_stays_up(host, device):
+    """A serial port read with nothing waiting gives b"" (pyserial sets VMIN 0), as a hung-up one does: a
+    pump that took it for an unplug dropped the link every few pumps of a quiet stream."""
+    with started(host, device, batch_s=0.02) as link:
+        assert link.set_pumped(True)
+        for _ in range(20):
+            link.pump()
+            time.sleep(0.02)
+        assert link.connected and not host.events_of("disconnected")

@@ -380,20 +380,15 @@ class DeviceLink:
             return 0
         try:
             port = self._port
-            fd = _port_fd(port) if port is not None else None
-            if port is None or fd is None:
+            if port is None or _port_fd(port) is None:
                 return 0
             try:
-                data = os.read(fd, 65536)
-            except BlockingIOError:  # nothing waiting
-                data = b""
-            except OSError as exc:
+                # A serial port read with nothing waiting gives b"" (pyserial's VMIN 0), as a hung-up one
+                # does: select() first tells them apart, as the reader's reads do.
+                data = self._read_chunk(port, 0.0)
+            except (serial.SerialException, OSError) as exc:
                 self._link_down(str(exc))
                 return 0
-            else:
-                if not data:  # end of file: the device went away (a closed socket, a vanished pty)
-                    self._link_down("the device closed the connection")
-                    return 0
             self._took(data, time.monotonic_ns())
             return len(data)
         finally:
@@ -494,8 +489,8 @@ class DeviceLink:
         self._prompt.clear()
 
     @staticmethod
-    def _read_chunk(port: serial.SerialBase) -> bytes:
-        """Whatever has arrived, as soon as anything has (or b"" after 50 ms).
+    def _read_chunk(port: serial.SerialBase, timeout_s: float = 0.05) -> bytes:
+        """Whatever has arrived, as soon as anything has (or b"" after `timeout_s`, 50 ms).
 
         On a POSIX serial port one select() and one read() of the file descriptor: pyserial's
         read(1) + in_waiting + read(n) costs three more system calls and their Python overhead
@@ -508,7 +503,7 @@ class DeviceLink:
         fd = _port_fd(port)
         is_socket = isinstance(port, protocol_socket.Serial)
         if fd is not None:
-            ready, _, _ = select.select([fd], [], [], 0.05)
+            ready, _, _ = select.select([fd], [], [], timeout_s)
             if not ready:
                 return b""
             try:

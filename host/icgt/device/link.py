@@ -52,7 +52,7 @@ HOST_RECEIVED_LAG_NS = 3_000_000_000
 PROMPT_WINDOW_NS = 100_000_000
 """After each send that awaits an answer, the reader reads as soon as bytes arrive for this long [ns] (its stamp),
 or until every answer awaited has come (see _dispatch: a TIME_SYNC_REPLY comes within a millisecond or two)."""
-PUMPED_PAUSE_S = 0.25
+PUMPED_PAUSE_S = 0.1
 """While the owner pumps (`pump()`), the reader's pause between reads when nothing is awaited or due [s]: it
 only reads what no pump took (the owner stopped pumping), sends the TIME_SYNCs and waits for answers."""
 CATCH_UP_TIMEOUT_S = 0.02

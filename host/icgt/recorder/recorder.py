@@ -325,6 +325,9 @@ class Recorder:
         if self._stop.is_set():
             return
         self._stop.set()
+        if self.device is not None:
+            # The worker steps no more: the device reader reads the stream again (during the wait below)
+            self.device.set_pumped(False)
         if self._capturing and self.device is not None:
             with contextlib.suppress(IcgtError):
                 self.stop_capture()
@@ -333,7 +336,6 @@ class Recorder:
             self._worker.join(timeout=3.0)
         if self.device is not None:
             self.device.time_sync_interval_s = None  # no exchange after the worker's last step
-            self.device.set_pumped(False)  # its reader reads everything again until it stops
         with self._step():
             self._drain(limit=None)
             self._emit(self.sync.poll(time.monotonic_ns(), flush=True))

@@ -230,6 +230,10 @@ class MavlinkLink:
             if thread is not threading.current_thread():
                 thread.join(timeout_s)
         self._threads = []
+        if self._pumped and self._conn is not None:
+            # What arrived since the owner's last pump is handed on (to this thread's caller), not closed away.
+            with contextlib.suppress(Exception):
+                self._drain_stamped(self._conn, self._conn.port)
         self._pumped = False
         with self._send_lock:
             self._close_transport()

@@ -265,8 +265,9 @@ class MavlinkLink:
         read = 0
         conn = self._conn
         if conn is None:
-            if self._clock() >= self._reopen_at_ns:
-                self._reopen_at_ns = self._clock() + int(self.config.reopen_delay_s * 1e9)
+            now = self._clock()
+            if now >= self._reopen_at_ns:
+                self._reopen_at_ns = now + int(self.config.reopen_delay_s * 1e9)
                 self._try_reopen()
         else:
             try:

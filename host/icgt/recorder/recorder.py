@@ -3,14 +3,16 @@
 The recorder is I/O around one `icgt.sync.Synchroniser`: the device link (serial), the MAVLink
 link (autopilot and ground station), the MAVLink camera component, the MCAP log and the local
 control socket. Threads: one worker reads both links at the start of each step (`pump()`: the
-device's stream, and the MAVLink datagrams, which carry the kernel's arrival stamps), putting what
+device's stream, and the MAVLink datagrams, which carry the kernel's arrival stamps; steps every 100 ms
+and when the next frame is due, see `step_schedule`), putting what
 arrived in one inbox, and then takes each input from the inbox, writes it to the log and feeds it to
 the synchroniser, in that order, polls the synchroniser for frames and writes clock estimates and
 counters. The device link's reader thread sends the TIME_SYNC requests at the rate the worker sets and
 reads the device's answers the moment they arrive (their stamps are what the clock filter uses); on a
 serial or TCP MAVLink link the link's reader thread stamps and hands on what arrives. Waking a thread
 costs as much CPU as handling dozens of messages: this way the worker and the device reader wake about
-50 times a second (about 65 with the log writer and the rest), where the threads woke about 230 times.
+40 times a second while capturing at 5 fps (about 55 with the log writer and the rest), where the threads
+woke about 230 times.
 Because the log holds every input in the order the synchroniser saw it, `icgt.ingest.recompute` gives
 back the same frames. The camera component and the control socket call start/stop/shoot, which talk
 to the device.
@@ -68,6 +70,7 @@ from icgt.recorder import capture, topics, views
 from icgt.recorder.camera_link import CAMERA_IMAGES_SCHEMA, CameraImages, build_camera
 from icgt.recorder.config import RecorderConfig
 from icgt.recorder.resync import TakeOver, take_over
+from icgt.recorder.step_schedule import StepSchedule
 from icgt.recorder.tuning import InterpreterTuning
 from icgt.recorder.views import FoxgloveViews
 from icgt.recording import McapRecorder, RecordingError, layout
@@ -112,9 +115,6 @@ class RecorderStatus:
 # Inputs from the reader threads to the worker, tagged by kind.
 _DEVICE, _EXCHANGE, _DEVICE_EVENT, _MAVLINK, _MAVLINK_EVENT, _TIMESYNC_SENT = range(6)
 _DRAIN_MAX = 5000  # inputs handled before the worker polls again (bounds frame latency under a flood)
-# The worker wakes this often [s]; the readers never wake it (no switch per message). Each wake-up polls the
-# synchroniser (~0.1 ms): every 10 ms that alone was 1 % of a core. Frames wait for later telemetry anyway.
-_WORK_PERIOD_S = 0.05
 _MAVLINK_SERVICE_PERIOD_S = 0.05  # a serial/TCP MAVLink link's liveness / TIMESYNC / rate-request steps [s]
 _OTHER_SYSTEMS_BATCH = 500  # other systems' MAVLink frames per /mavlink/other_systems record, at most
 # The device reader sleeps this long between reads [s] when no stamp depends on it (DeviceLink batch_s: not
@@ -142,6 +142,7 @@ class Recorder:
         self._mono_to_utc_ns = time.time_ns() - time.monotonic_ns()  # fixed: log times stay monotonic
         self.sync_config = SyncConfig(geotag=config.camera, autopilot_system=config.mavlink.system_id)
         self.sync = Synchroniser(self.sync_config)  # fed and polled by the worker thread only
+        self.schedule = StepSchedule()  # when the worker steps: every 100 ms, and when a frame is due
         self.views = FoxgloveViews(
             config.camera, self._write, self._log_time, lambda: self.sync.geotagger.origin, config.mavlink.system_id
         )
@@ -671,6 +672,7 @@ class Recorder:
 
     def _on_frame(self, rec: FrameRecord) -> None:
         self.frames += 1
+        self.schedule.on_frame(rec.mid_host_ns)
         self._write(topics.FRAMES, rec, rec.mid_host_ns)
         self.views.on_frame(rec)
         if self.camera is not None:
@@ -678,11 +680,17 @@ class Recorder:
 
     # ------------------------------------------------------------------ worker
     def _work(self) -> None:
-        while not self._stop.wait(_WORK_PERIOD_S):
+        # The readers never wake the worker (no switch per message): it steps on its schedule (step_schedule).
+        wait_s = self.schedule.timing.period_s
+        while not self._stop.wait(wait_s):
+            wait_s = self.schedule.timing.period_s
             try:
                 with self._step():
                     self._drain(limit=_DRAIN_MAX)
-                    self._work_once(time.monotonic_ns())
+                    now = time.monotonic_ns()
+                    self._work_once(now)
+                next_ns = self.schedule.next_step_ns(now, self.sync.pending_frames)
+                wait_s = max(0.0, (next_ns - time.monotonic_ns()) / 1e9)
             except Exception:  # the worker must outlive any bug: frames keep being emitted
                 log.exception("recorder worker error (recording continues)")
 

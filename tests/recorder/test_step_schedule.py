@@ -1,0 +1,76 @@
+"""The recorder worker's step schedule: the base period, a step when the next frame is due, retries."""
+
+from __future__ import annotations
+
+import pytest
+
+from icgt.recorder.step_schedule import StepSchedule, StepTiming
+
+MS = 1_000_000
+
+
+def test_without_frames_it_steps_at_the_base_period() -> None:
+    s = StepSchedule(StepTiming(period_s=0.1))
+    assert s.next_step_ns(5_000 * MS, pending_frames=0) == 5_100 * MS
+    s.on_frame(4_000 * MS)  # one frame: no interval yet
+    assert s.interval_ns is None
+    assert s.next_step_ns(5_000 * MS, pending_frames=0) == 5_100 * MS
+
+
+def test_at_a_steady_cadence_it_steps_when_the_next_frame_is_due() -> None:
+    s = StepSchedule(StepTiming(period_s=0.1, ready_after_s=0.03))
+    s.on_frame(1_000 * MS)
+    s.on_frame(1_200 * MS)  # 5 fps
+    assert s.interval_ns == 200 * MS
+    # Stepped at the due time of that frame (its mid + 30 ms): the next one is due at 1400 + 30.
+    assert s.next_step_ns(1_230 * MS, pending_frames=0) == 1_330 * MS  # the base period comes first
+    assert s.next_step_ns(1_340 * MS, pending_frames=0) == 1_430 * MS  # the due time, before the base period
+    assert s.next_step_ns(1_400 * MS, pending_frames=0) == 1_430 * MS  # due sooner than the base period
+    s.on_frame(1_401 * MS)  # the cadence follows the frames: 201 ms now
+    assert s.interval_ns == 201 * MS
+    assert s.next_step_ns(1_431 * MS, pending_frames=0) == 1_531 * MS
+    assert s.next_step_ns(1_600 * MS, pending_frames=0) == (1_401 + 201 + 30) * MS
+
+
+def test_a_missed_exposure_moves_on_to_the_next_due_time_then_the_cadence_is_forgotten() -> None:
+    s = StepSchedule(StepTiming(period_s=0.1, ready_after_s=0.03, max_misses=3))
+    s.on_frame(1_000 * MS)
+    s.on_frame(1_200 * MS)
+    assert s.next_step_ns(1_500 * MS, pending_frames=0) == 1_600 * MS  # 1430 passed without a frame: 1630 next
+    assert s.next_step_ns(1_600 * MS, pending_frames=0) == 1_630 * MS
+    assert s.next_step_ns(1_830 * MS, pending_frames=0) == 1_930 * MS  # k = 3: 1830 itself has passed
+    assert s.next_step_ns(1_900 * MS, pending_frames=0) == 2_000 * MS  # the fourth due time: forgotten
+    assert s.interval_ns is None
+    assert s.next_step_ns(2_000 * MS, pending_frames=0) == 2_100 * MS
+
+
+def test_bursts_and_single_shots_set_no_cadence() -> None:
+    s = StepSchedule(StepTiming(min_interval_s=0.05, max_interval_s=5.0))
+    s.on_frame(1_000 * MS)
+    s.on_frame(1_010 * MS)  # two cameras, or a burst: too close
+    assert s.interval_ns is None
+    s.on_frame(1_005 * MS)  # an older frame: ignored
+    s.on_frame(7_010 * MS)  # a single shot six seconds later
+    assert s.interval_ns is None
+    s.on_frame(8_010 * MS)
+    assert s.interval_ns == 1_000 * MS
+    s.on_frame(20_000 * MS)  # a long pause ends the cadence
+    assert s.interval_ns is None
+
+
+def test_a_pending_frame_is_retried_soon_a_few_times_then_at_the_base_period() -> None:
+    s = StepSchedule(StepTiming(period_s=0.1, retry_s=0.02, max_retries=2))
+    assert s.next_step_ns(0, pending_frames=1) == 20 * MS
+    assert s.next_step_ns(20 * MS, pending_frames=1) == 40 * MS
+    assert s.next_step_ns(40 * MS, pending_frames=1) == 140 * MS  # waiting out a GPS gap: no 50 Hz stepping
+    assert s.next_step_ns(140 * MS, pending_frames=0) == 240 * MS
+    assert s.next_step_ns(240 * MS, pending_frames=2) == 260 * MS  # a new wait: retried again
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [{"retry_s": 0.0}, {"retry_s": 0.2, "period_s": 0.1}, {"min_interval_s": 6.0}, {"max_misses": 0}],
+)
+def test_settings_out_of_range_are_refused(kwargs: dict[str, float]) -> None:
+    with pytest.raises(ValueError):
+        StepTiming(**kwargs)  # type: ignore[arg-type]

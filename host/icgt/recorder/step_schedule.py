@@ -32,11 +32,14 @@ __all__ = ["StepSchedule", "StepTiming"]
 class StepTiming:
     """The schedule's settings [s]."""
 
-    period_s: float = 0.1  # the base period: the longest the worker sleeps
+    # The base period: the longest the worker sleeps. Not longer: the device streams ~25 KB/s at nominal rates
+    # and Linux's serial line discipline holds 4 KB (N_TTY_BUF_SIZE) before it throttles the port; at a 10 k
+    # msg/s flood 100 ms is ~1000 datagrams, a quarter of the 4 MB UDP receive buffer.
+    period_s: float = 0.1
     retry_s: float = 0.02  # a frame pending after a step is tried again this much later
     max_retries: int = 5  # consecutive retries, then the base period (a frame waiting out a GPS gap)
     ready_after_s: float = 0.03  # after a due mid-exposure: its exposure record and the telemetry after it
-    min_interval_s: float = 0.05  # frames closer than this (a burst, two cameras) do not set the cadence
+    min_interval_s: float = 0.04  # frames closer (two cameras; 20 fps, the fastest trigger, is 50 ms) set none
     max_interval_s: float = 5.0  # frames farther apart than this: no cadence (single shots)
     max_misses: int = 3  # due times without a frame before the cadence is forgotten
 

@@ -194,6 +194,22 @@ def test_take_photo_and_interval_give_one_capture_info_per_image(plain: PlainFli
     assert max(exposed) < plain.stopped_ns  # nothing exposed after stop_photo_interval returned
 
 
+def test_frames_of_a_steady_interval_are_emitted_when_due_not_a_worker_period_later(plain: PlainFlight) -> None:
+    """The recorder's worker steps every 100 ms and when the next frame of a steady cadence is due
+    (icgt.recorder.step_schedule): a frame of the interval capture is emitted about 30 ms after its
+    mid-exposure (its telemetry sample has come), not 0-100 ms later on top of that (median ~75 ms with
+    the base period alone, ~33 ms on time). The bound leaves room for a loaded machine."""
+    assert plain.mcap is not None
+    mids = sorted((f["mid_host_ns"], f["emitted_host_ns"]) for f in read_frames(plain.mcap))
+    steady = [
+        (emitted - mid) / 1e6
+        for (prev, _), (prev2, _), (mid, emitted) in zip(mids, mids[1:], mids[2:], strict=False)
+        if abs((prev2 - prev) - (mid - prev2)) < 50_000_000 and 0.3e9 < mid - prev2 < 0.7e9  # 0.5 s interval
+    ]
+    assert len(steady) >= 4, steady
+    assert sorted(steady)[len(steady) // 2] < 55.0, steady
+
+
 def test_list_photos_after_reconnecting_sees_the_recording_s_indices_and_its_history(plain: PlainFlight) -> None:
     """The new client's photo continues the recording's numbering (index = image_count - 1), and the older
     images come from the history when asked for. MAVSDK 4.1 asks for older images with REQUEST_MESSAGE

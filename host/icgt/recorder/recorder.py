@@ -683,7 +683,6 @@ class Recorder:
         # The readers never wake the worker (no switch per message): it steps on its schedule (step_schedule).
         wait_s = self.schedule.timing.period_s
         while not self._stop.wait(wait_s):
-            wait_s = self.schedule.timing.period_s
             try:
                 with self._step():
                     self._drain(limit=_DRAIN_MAX)
@@ -693,6 +692,7 @@ class Recorder:
                 wait_s = max(0.0, (next_ns - time.monotonic_ns()) / 1e9)
             except Exception:  # the worker must outlive any bug: frames keep being emitted
                 log.exception("recorder worker error (recording continues)")
+                wait_s = self.schedule.timing.period_s
 
     def _schedule_time_sync(self) -> None:
         """The device reader sends the TIME_SYNC requests (DeviceLink.time_sync_interval_s: one wake-up per

@@ -11,6 +11,7 @@ Right behaviour: the datagram sent meanwhile is stamped within a few ms of when 
 
 from __future__ import annotations
 
+import itertools
 import socket
 import threading
 import time
@@ -92,3 +93,51 @@ def test_an_owner_pumped_link_has_no_threads_and_pump_hands_on_each_datagram_wit
     assert [m.msg.time_boot_ms for m in got[1:]] == [*range(1000, 1020), 2000]
     assert all(sent_ns <= m.rx_ns < sent_ns + 100_000_000 < pumped_ns for m in got[:-1]), "stamped at the pump"
     assert link.state.value == "up" and sent_ts, "the service step did not run"
+
+
+def test_an_autopilot_already_sending_is_stamped_on_arrival_from_its_first_datagram() -> None:
+    """A real autopilot streams before the recorder is up (issue 34): the first datagrams reach the socket
+    while it is being opened, when the kernel may not stamp arrivals yet and would stamp them when read.
+    Every message must carry its arrival, no later than the moment its send returned, and per sender the
+    receive times must follow the send order (here the first pump comes 300 ms after the link opened)."""
+    port = _free_udp_port()
+    link = MavlinkLink(LinkConfig(url=f"udpin:127.0.0.1:{port}", owner_pumps=True))
+    got: list[MavlinkMessage] = []
+    link.subscribe(got.append)
+    sent_after: dict[int, int] = {}  # time_boot_ms -> host clock when its sendto returned [ns]
+    stop = threading.Event()
+
+    def autopilot() -> None:
+        mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+            k = 0
+            while not stop.is_set():
+                k += 1
+                try:
+                    tx.sendto(mav.system_time_encode(0, k).pack(mav), ("127.0.0.1", port))
+                except OSError:  # nobody bound yet (ECONNREFUSED): a real autopilot does not care either
+                    pass
+                sent_after[k] = time.monotonic_ns()
+                time.sleep(0.0005)
+
+    sender = threading.Thread(target=autopilot, daemon=True)
+    sender.start()
+    try:
+        time.sleep(0.05)
+        link.start()
+        time.sleep(0.3)  # the recorder's first step comes late
+        for _ in range(10):
+            link.pump()
+            time.sleep(0.02)
+    finally:
+        stop.set()
+        sender.join(2.0)
+        link.stop()
+    msgs = [m for m in got if m.type == "SYSTEM_TIME"]
+    assert len(msgs) > 100
+    ks = [m.msg.time_boot_ms for m in msgs]
+    assert ks == sorted(ks), "datagrams handed on out of order"
+    late = [(k, (m.rx_ns - sent_after[k]) / 1e6) for k, m in zip(ks, msgs, strict=True) if m.rx_ns > sent_after[k] + 2_000_000]
+    assert not late, f"stamped over 2 ms after their send returned (message, ms late): {late[:5]}"
+    rx = [m.rx_ns for m in msgs]
+    assert all(a <= b for a, b in itertools.pairwise(rx)), "receive times run backwards"

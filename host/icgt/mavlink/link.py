@@ -63,6 +63,7 @@ from icgt.mavlink.link_types import (
 )
 from icgt.mavlink.signing import SigningState
 from icgt.mavlink.transport import is_datagram, open_transport
+from icgt.mavlink.udp_stamps import SO_RXQ_OVFL, SO_TIMESTAMPNS, enable_stamps, wait_until_arrivals_stamped
 
 __all__ = [
     "DEFAULT_STREAM_RATES",
@@ -85,11 +86,10 @@ log = logging.getLogger(__name__)
 
 # Linux's SO_TIMESTAMPNS / SCM_TIMESTAMPNS (Python's socket module does not name them): a struct timespec
 # of the datagram's arrival on CLOCK_REALTIME in the ancillary data of recvmsg.
-_SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
-_SCM_TIMESTAMPNS = _SO_TIMESTAMPNS
+_SCM_TIMESTAMPNS = SO_TIMESTAMPNS
 # SO_RXQ_OVFL: a datagram read after the kernel dropped some (receive buffer full) carries the socket's count of
 # drops so far (a u32) in its ancillary data.
-_SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
+_SO_RXQ_OVFL = SO_RXQ_OVFL
 _CMSG_SPACE = socket.CMSG_SPACE(16) + socket.CMSG_SPACE(4)
 _TIMESPEC = struct.Struct("qq")  # struct timespec: tv_sec, tv_nsec
 _U32 = struct.Struct("I")
@@ -180,7 +180,7 @@ class MavlinkLink:
         (none when `pumped`: the owner calls `pump()`)."""
         if self._threads or self._pumped:
             raise LinkError("link already started")
-        self._conn = open_transport(self.config)
+        self._conn = open_transport(self.config, stamped=self._clock is time.monotonic_ns)
         self._tune_socket(self._conn)
         self._stop.clear()
         if self.config.owner_pumps and self._datagram and self._kernel_stamps:
@@ -211,14 +211,12 @@ class MavlinkLink:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, want)
         got = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) // 2  # Linux reports twice what it books
         if self._clock is time.monotonic_ns:  # the kernel's stamps are on the host clock only
-            try:
-                sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+            # (a listening socket has them already, from before its bind; an udpout one gets them before its
+            # first send, so before any answer can arrive)
+            if enable_stamps(sock):
                 self._kernel_stamps = True
-                with contextlib.suppress(OSError):  # drops counted if the kernel can say so
-                    sock.setsockopt(socket.SOL_SOCKET, _SO_RXQ_OVFL, 1)
                 self._socket_drops = 0  # a new socket counts from 0
-            except OSError as exc:
-                log.warning("no kernel receive timestamps on the MAVLink socket (%s): arrival = read time", exc)
+                wait_until_arrivals_stamped()
         if got < want:
             log.warning("UDP receive buffer is %d bytes, %d asked (raise net.core.rmem_max to allow it)", got, want)
         self.receive_buffer_bytes = got
@@ -848,7 +846,7 @@ class MavlinkLink:
 
     def _try_reopen(self) -> None:
         try:
-            conn = open_transport(self.config)
+            conn = open_transport(self.config, stamped=self._clock is time.monotonic_ns)
         except LinkError as exc:
             log.debug("reopen of %s failed: %s", self.config.url, exc)
             return

@@ -9,6 +9,7 @@ row per frame.
 
 from __future__ import annotations
 
+import html
 import html.parser
 import re
 import shutil
@@ -142,3 +143,32 @@ def test_report_refuses_a_missing_log(tmp_path: Path, capsys: pytest.CaptureFixt
     assert main(["report", str(tmp_path / "nope.mcap"), "--out", str(tmp_path / "r.html")]) == 1
     assert "no such file" in capsys.readouterr().err
     assert not (tmp_path / "r.html").exists()
+
+
+def test_the_track_plot_spans_the_flight_not_the_positions_before_the_fix(export_flight: Any) -> None:
+    """The flight's telemetry starts without a fix (latitude/longitude 0, as real autopilots send): those
+    samples are counted on the page, not drawn, and the plan and elevation views span what the frames span."""
+    from icgt.report.plots import _plt, track_axes
+    from icgt.report.summary import NO_FIX, gather
+
+    data = gather(read(export_flight.mcap))
+    assert data.track_left_out.get(NO_FIX, 0) > 10, data.track_left_out
+    pos = np.array([(r.east_m, r.north_m, r.up_m) for r in data.frames if r.east_m is not None], dtype=float)
+    assert len(pos) > 20
+    fig, plan, elev = track_axes(data)
+    try:
+        margin_m = 5.0  # the hover's sway and the track's ends beyond the frames, and the axes' padding
+        (x0, x1), (y0, y1) = plan.get_xlim(), plan.get_ylim()
+        e, n = pos[:, 0], pos[:, 1]
+        span = max(e.max() - e.min(), n.max() - n.min())
+        assert x0 <= e.min() and e.max() <= x1 and y0 <= n.min() and n.max() <= y1
+        assert max(x1 - x0, y1 - y0) < span + 2 * margin_m + 10.0, ((x0, x1), (y0, y1), span)
+        (_a0, _a1), (z0, z1) = elev.get_xlim(), elev.get_ylim()
+        assert z0 <= pos[:, 2].min() and pos[:, 2].max() <= z1
+        assert z1 - z0 < (pos[:, 2].max() - pos[:, 2].min()) + 2 * margin_m + 10.0 + span, (z0, z1)
+    finally:
+        _plt().close(fig)
+    page = (Path(str(export_flight.mcap)).parent / "track_report.html")
+    assert main(["report", str(export_flight.mcap), "--out", str(page)]) == 0
+    note = re.search(r'id="track-left-out">([^<]*)<', page.read_text())
+    assert note is not None and "not drawn:" in note.group(1) and NO_FIX in html.unescape(note.group(1))

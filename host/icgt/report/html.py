@@ -7,7 +7,7 @@ import math
 from pathlib import Path
 
 from icgt.report import plots
-from icgt.report.summary import FlightData, ReportError, summarize
+from icgt.report.summary import PLAUSIBLE_RADIUS_M, FlightData, ReportError, summarize
 
 _CSS = """
 body { font-family: system-ui, sans-serif; margin: 1.5em auto; max-width: 1200px; color: #222; }
@@ -74,6 +74,17 @@ def _frame_table(data: FlightData) -> str:
     return f'<div class="frames"><table><thead><tr>{head}</tr></thead><tbody>{"".join(rows)}</tbody></table></div>'
 
 
+def _left_out_note(data: FlightData) -> str:
+    """What the track figure does not draw, and why (nothing is left out silently)."""
+    parts = [f"{n} track samples: {why}" for why, n in data.track_left_out.items()]
+    outside = plots.frames_outside(data)
+    if outside:
+        parts.append(f"{outside} frames: over {PLAUSIBLE_RADIUS_M / 1000:.0f} km from the ENU origin")
+    if not parts:
+        return '<p class="note" id="track-left-out">every track sample and frame position is drawn</p>'
+    return f'<p class="note" id="track-left-out">not drawn: {html.escape("; ".join(parts))}</p>'
+
+
 def render(data: FlightData) -> str:
     """The whole page."""
     from icgt import __version__
@@ -82,7 +93,7 @@ def render(data: FlightData) -> str:
     footprints = plots.footprint_figure(data)
     sections = [
         ("Summary", f'<table class="summary">{summary}</table>'),
-        ("Track and frame positions", f"<figure>{plots.track_figure(data)}</figure>"),
+        ("Track and frame positions", f"<figure>{plots.track_figure(data)}</figure>{_left_out_note(data)}"),
         (
             "Footprints on the structure face (coverage and overlap)",
             f"<figure>{footprints}</figure>"

@@ -8,12 +8,13 @@ along the face, t up it; `icgt.geometry.plane_axes`).
 from __future__ import annotations
 
 import io
+import math
 from collections import Counter
 from typing import Any
 
 import numpy as np
 
-from icgt.report.summary import FlightData
+from icgt.report.summary import PLAUSIBLE_RADIUS_M, FlightData
 
 OK_COLOUR = "#1f77b4"
 FLAG_COLOUR = "#d62728"
@@ -41,12 +42,27 @@ def _svg(fig: Any) -> str:
     return text[text.index("<svg") :]  # drop the XML prolog and DOCTYPE: the SVG goes inline in HTML
 
 
+def frames_outside(data: FlightData) -> int:
+    """Frames with a position outside the plausible area (not drawn)."""
+    return sum(
+        1
+        for r in data.frames
+        if r.east_m is not None
+        and r.north_m is not None
+        and r.up_m is not None
+        and math.hypot(r.east_m, r.north_m, r.up_m) > PLAUSIBLE_RADIUS_M
+    )
+
+
 def _frame_xyz(data: FlightData) -> tuple[np.ndarray[Any, Any], np.ndarray[Any, Any]]:
-    """(positions (N, 3) ENU [m] of frames that have one, flagged mask)."""
+    """(positions (N, 3) ENU [m] of frames that have one inside the plausible area, flagged mask)."""
     rows = [
         (r.east_m, r.north_m, r.up_m, bool(r.flags))
         for r in data.frames
-        if r.east_m is not None and r.north_m is not None and r.up_m is not None
+        if r.east_m is not None
+        and r.north_m is not None
+        and r.up_m is not None
+        and math.hypot(r.east_m, r.north_m, r.up_m) <= PLAUSIBLE_RADIUS_M
     ]
     if not rows:
         return np.zeros((0, 3)), np.zeros(0, dtype=bool)
@@ -56,6 +72,11 @@ def _frame_xyz(data: FlightData) -> tuple[np.ndarray[Any, Any], np.ndarray[Any, 
 
 def track_figure(data: FlightData) -> str:
     """Plan view and elevation of the vehicle track with the frame positions."""
+    return _svg(track_axes(data)[0])
+
+
+def track_axes(data: FlightData) -> tuple[Any, Any, Any]:
+    """(figure, plan axes, elevation axes) of `track_figure`, drawn but not yet rendered."""
     plt = _plt()
     fig, (plan, elev) = plt.subplots(1, 2, figsize=(11, 4.2))
     track = data.track_enu_m
@@ -91,7 +112,7 @@ def track_figure(data: FlightData) -> str:
     elev.grid(alpha=0.3)
     if plan.get_legend_handles_labels()[0]:
         plan.legend(loc="best", fontsize=8)
-    return _svg(fig)
+    return fig, plan, elev
 
 
 def coverage_grid(

@@ -24,6 +24,11 @@ from icgt.geotag.record import FrameRecord
 from icgt.recording import layout
 
 _TRACK = layout.mavlink_topic("GLOBAL_POSITION_INT")
+PLAUSIBLE_RADIUS_M = 20_000.0
+"""A track sample farther than this from the recording's ENU origin is not the flight (a glitch, a stale or
+foreign position) and is not drawn [m]: an inspection flight stays within a few km of its start."""
+NO_FIX = "no fix (latitude/longitude 0)"
+OUTSIDE = f"over {PLAUSIBLE_RADIUS_M / 1000:.0f} km from the ENU origin"
 _STATUS = layout.device_topic("STATUS")
 
 log = logging.getLogger(__name__)
@@ -63,7 +68,7 @@ class FlightData:
     frames: list[FrameRecord]
     track_t_s: np.ndarray[Any, Any]
     track_enu_m: np.ndarray[Any, Any]
-    """Vehicle track from GLOBAL_POSITION_INT, (N, 3) ENU [m]."""
+    """Vehicle track from GLOBAL_POSITION_INT, (N, 3) ENU [m]: only samples with a fix, inside the plausible area."""
     device_clock: list[tuple[float, float | None]]
     """(t [s], device->host mapping bound [us], None while not valid) per /clock/device estimate."""
     utc_clock: list[tuple[float, float | None, str]]
@@ -81,6 +86,8 @@ class FlightData:
     """frame_seq -> footprint outline in the structure face's map coordinates (s, t) [m], (N, 2)."""
     footprint_note: str = ""
     note: str | None = None
+    track_left_out: dict[str, int] = field(default_factory=dict)
+    """Track samples not drawn, by reason ("no fix (latitude/longitude 0)", "outside the plausible area")."""
 
     def t_s(self, host_ns: int) -> float:
         return (host_ns - self.t0_host_ns) / 1e9
@@ -133,14 +140,24 @@ def gather(recording: Any, images: Path | None = None) -> FlightData:
         last = max(last, h)
     duration = (max([last] + [h for h, _ in dev_clock]) - t0) / 1e9
 
+    # Autopilots send GLOBAL_POSITION_INT before their first fix with latitude and longitude 0: those
+    # samples (and any far outside the flight) would stretch the plots over thousands of kilometres.
+    left_out: Counter[str] = Counter()
+    fixed = [row for row in track if row[1] != 0 or row[2] != 0]
+    left_out[NO_FIX] = len(track) - len(fixed)
     origin = recording.enu_origin
-    if origin is None and track:
-        origin = track[0][1:]
+    if origin is None and fixed:
+        origin = fixed[0][1:]
     enu = np.zeros((0, 3))
+    track = fixed
     if track and origin is not None:
         lf = LocalFrame(*origin)
         arr = np.array([row[1:] for row in track])
         enu = lf.geodetic_to_enu(arr[:, 0], arr[:, 1], arr[:, 2])
+        inside = np.linalg.norm(enu, axis=1) <= PLAUSIBLE_RADIUS_M
+        left_out[OUTSIDE] = int((~inside).sum())
+        enu = enu[inside]
+        track = [row for row, ok in zip(track, inside.tolist(), strict=True) if ok]
     data = FlightData(
         path=Path(recording.path),
         t0_host_ns=t0,
@@ -156,6 +173,7 @@ def gather(recording: Any, images: Path | None = None) -> FlightData:
         metadata=recording.metadata,
         topics=topics,
         note=getattr(recording, "note", None),
+        track_left_out={k: v for k, v in left_out.items() if v},
     )
     _events(data, events)
     _footprints(data, recording)

@@ -168,7 +168,7 @@ def test_the_track_plot_spans_the_flight_not_the_positions_before_the_fix(export
         assert z1 - z0 < (pos[:, 2].max() - pos[:, 2].min()) + 2 * margin_m + 10.0 + span, (z0, z1)
     finally:
         _plt().close(fig)
-    page = (Path(str(export_flight.mcap)).parent / "track_report.html")
+    page = Path(str(export_flight.mcap)).parent / "track_report.html"
     assert main(["report", str(export_flight.mcap), "--out", str(page)]) == 0
     note = re.search(r'id="track-left-out">([^<]*)<', page.read_text())
     assert note is not None and "not drawn:" in note.group(1) and NO_FIX in html.unescape(note.group(1))

@@ -210,13 +210,12 @@ class MavlinkLink:
         with contextlib.suppress(OSError):
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, want)
         got = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) // 2  # Linux reports twice what it books
-        if self._clock is time.monotonic_ns:  # the kernel's stamps are on the host clock only
-            # (a listening socket has them already, from before its bind; an udpout one gets them before its
-            # first send, so before any answer can arrive)
-            if enable_stamps(sock):
-                self._kernel_stamps = True
-                self._socket_drops = 0  # a new socket counts from 0
-                wait_until_arrivals_stamped()
+        # The kernel's stamps are on the host clock only. A listening socket has them already, from before
+        # its bind; an udpout one gets them before its first send, so before any answer can arrive.
+        if self._clock is time.monotonic_ns and enable_stamps(sock):
+            self._kernel_stamps = True
+            self._socket_drops = 0  # a new socket counts from 0
+            wait_until_arrivals_stamped()
         if got < want:
             log.warning("UDP receive buffer is %d bytes, %d asked (raise net.core.rmem_max to allow it)", got, want)
         self.receive_buffer_bytes = got

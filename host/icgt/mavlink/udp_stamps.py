@@ -78,7 +78,7 @@ def wait_until_arrivals_stamped(timeout_s: float = PROBE_WAIT_S) -> bool:
             if arrivals_stamped(probe):
                 return True
             if time.monotonic() >= deadline:
-                log.warning("the kernel did not stamp UDP arrivals within %.1f s: early datagrams get read times", timeout_s)
+                log.warning("the kernel did not stamp UDP arrivals within %.1f s: early ones get read times", timeout_s)
                 return False
             time.sleep(0.001)
     except OSError as exc:

@@ -284,7 +284,15 @@ int main(int argc, char** argv) {
       return "ok";
     }
     if (cmd == "manual_shot") {
-      board.camera().manual_shot(board.clock().now_us() + 1000);
+      std::string when;
+      in >> when;
+      if (when == "between") {  // half-way between two triggered exposures (camera_model.hpp)
+        board.camera().manual_shot_between_triggers(board.clock().now_us() + 1000);
+      } else if (when.empty()) {
+        board.camera().manual_shot(board.clock().now_us() + 1000);
+      } else {
+        return "error: manual_shot [between]";
+      }
       return "ok";
     }
     if (cmd == "disconnect") {
@@ -369,6 +377,7 @@ int main(int argc, char** argv) {
     const auto& ig = board.camera().ignored();
     for (; ignored_emitted < ig.size(); ++ignored_emitted) events.line(ignored_json(ig[ignored_emitted]));
     control.poll(handle);
+    board.camera().release_held_manual_shot(board.clock().now_us());
     if (replug_at_ns != 0 && icgt::sim::monotonic_now_ns() >= replug_at_ns) {
       link.replug();
       replug_at_ns = 0;

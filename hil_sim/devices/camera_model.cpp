@@ -14,6 +14,17 @@ void CameraModel::on_shutter_line(bool level, uint64_t t_us) {
   shutter_active_ = active;
   if (!rising) return;
   ++triggers_seen_;
+  if (last_trigger_t_us_ != 0) trigger_period_us_ = t_us - last_trigger_t_us_;
+  last_trigger_t_us_ = t_us;
+  on_trigger_pulse(t_us);
+  if (held_manual_t_us_ != 0 && trigger_period_us_ != 0) {
+    // After the trigger's own exposure (numbered first, as the camera takes it first).
+    held_manual_t_us_ = 0;
+    expose(0, t_us + (cfg_.latency_us + trigger_period_us_) / 2, true, 0);
+  }
+}
+
+void CameraModel::on_trigger_pulse(uint64_t t_us) {
   const bool forced = std::find(forced_misses_.begin(), forced_misses_.end(), triggers_seen_) != forced_misses_.end();
   if (forced || (cfg_.miss_every != 0 && triggers_seen_ % cfg_.miss_every == 0)) {
     ignore(triggers_seen_, t_us, IgnoredReason::forced);
@@ -43,6 +54,21 @@ void CameraModel::on_shutter_line(bool level, uint64_t t_us) {
 }
 
 void CameraModel::manual_shot(uint64_t t_us) { expose(0, t_us, true, 0); }
+
+void CameraModel::manual_shot_between_triggers(uint64_t t_us) {
+  if (steady_trigger(t_us)) {
+    held_manual_t_us_ = t_us;
+  } else {
+    manual_shot(t_us);
+  }
+}
+
+void CameraModel::release_held_manual_shot(uint64_t t_us) {
+  if (held_manual_t_us_ != 0 && !steady_trigger(t_us)) {
+    held_manual_t_us_ = 0;
+    manual_shot(t_us);
+  }
+}
 
 const char* ignored_reason_name(IgnoredReason r) {
   switch (r) {

@@ -66,6 +66,15 @@ class CameraModel {
   void on_shutter_line(bool level, uint64_t t_us);
   // A hand-pressed shot at t_us (no trigger).
   void manual_shot(uint64_t t_us);
+  // A hand-pressed shot pressed at t_us and taken half-way between two triggered exposures: at the
+  // next trigger pulse, (shutter lag + trigger period) / 2 after it, so that it is always as far
+  // from the triggered exposures on both sides whatever the phase of the trigger (the phase of a
+  // capture started over a real link varies from run to run). Without a steady trigger (none yet,
+  // or none for two periods) it is taken at once: see release_held_manual_shot.
+  void manual_shot_between_triggers(uint64_t t_us);
+  // A shot held by manual_shot_between_triggers is taken now (at t_us) if no trigger came for two
+  // periods (capture stopped). Call it as time advances.
+  void release_held_manual_shot(uint64_t t_us);
   // Missing the trigger with this 1-based index.
   void miss_trigger(uint32_t trigger_index) { forced_misses_.push_back(trigger_index); }
 
@@ -86,6 +95,7 @@ class CameraModel {
     uint64_t t_us;
     bool level;
   };
+  void on_trigger_pulse(uint64_t t_us);  // the camera's answer to one trigger pulse (or none)
   void expose(uint64_t trigger_t_us, uint64_t start_t_us, bool manual, uint32_t trigger_index);
   void ignore(uint32_t trigger_index, uint64_t t_us, IgnoredReason reason);
   void drain(uint64_t t_us);
@@ -105,6 +115,12 @@ class CameraModel {
   uint64_t last_nominal_start_t_us_ = 0;
   uint32_t buffered_ = 0;
   uint64_t write_done_t_us_ = 0;  // the frame being written is on the card then
+  uint64_t last_trigger_t_us_ = 0;  // the last trigger pulse's rising edge (0: none yet)
+  uint64_t trigger_period_us_ = 0;  // between the last two trigger pulses (0: fewer than two)
+  uint64_t held_manual_t_us_ = 0;   // when a shot held for the next trigger was pressed (0: none)
+  [[nodiscard]] bool steady_trigger(uint64_t t_us) const {
+    return trigger_period_us_ != 0 && t_us <= last_trigger_t_us_ + 2 * trigger_period_us_;
+  }
 };
 
 }  // namespace icgt::sim

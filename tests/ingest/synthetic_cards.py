@@ -23,7 +23,8 @@ def capture(params: dict[str, Any]) -> tuple[list[FrameRecord], list[ImageTime],
             index += 1
             events.append((t, "trigger", index))
             if rng.random() < params["p_manual"]:
-                events.append((t + rng.uniform(0.03, dt - 0.03), "manual", 0))
+                lo, hi = params.get("manual_phase", (0.03 / dt, 1.0 - 0.03 / dt))  # in trigger intervals
+                events.append((t + rng.uniform(lo * dt, hi * dt), "manual", 0))
         t += params["pause"]
     if params["test_shot"]:
         events.append((rng.uniform(-200.0, 5.0), "test_shot", 0))

@@ -168,3 +168,36 @@ def test_a_kept_match_is_reused_and_a_changed_card_is_matched_again(flight: Flig
         assert where is None and again.to_json() == fresh.to_json()
     finally:
         os.utime(image, ns=(stat.st_atime_ns, stat.st_mtime_ns))
+
+
+_card_flights = st.fixed_dictionaries(
+    {
+        "seed": st.integers(0, 2**32 - 1),
+        "dt": st.sampled_from([0.2, 0.25, 0.5]),
+        "res": st.just(0.01),
+        "offset": st.floats(3590.0, 3605.0),
+        "drift": st.floats(-60e-6, 60e-6),
+        "wired": st.just(True),
+        "passes": st.integers(1, 2),
+        "shots": st.integers(20, 90),
+        "pause": st.floats(1.0, 20.0),
+        "jitter": st.sampled_from([0.0005, 0.002]),
+        "p_miss": st.sampled_from([0.0, 0.03, 0.1]),
+        "p_manual": st.sampled_from([0.0, 0.03, 0.1]),
+        "manual_phase": st.just((0.4, 0.6)),  # half-way between triggers, as the card flight's
+        "p_untimed": st.just(0.0),
+        "test_shot": st.just(False),
+    }
+)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(_card_flights)
+def test_centisecond_cards_pair_every_image(params: dict[str, Any]) -> None:
+    """Cards shaped like the ingest flight's (a wired camera, missed triggers, manual shots clear of the
+    triggers, 10 ms EXIF times, a camera clock an hour off that drifts): every image is paired, rightly."""
+    frames, images, truth = capture(params)
+    result = match_times(frames, images)
+    wrong = [p.image.name for p in result.pairs if truth[p.image] != p.frame.frame_seq]
+    assert not wrong, wrong[:5]
+    assert len(result.pairs) == len(images), (len(result.pairs), len(images), result.ambiguous[:3], result.notes)

@@ -58,7 +58,7 @@ def arrivals_stamped(probe: socket.socket) -> bool:
         for level, kind, payload in ancdata:
             if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(payload) >= 16:
                 sec, nsec = _TIMESPEC.unpack_from(payload)
-                return sec * 1_000_000_000 + nsec <= sent_ns
+                return bool(sec * 1_000_000_000 + nsec <= sent_ns)
         return False
     return False
 

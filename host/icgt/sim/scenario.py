@@ -380,6 +380,11 @@ class Faults:
     """1-based trigger indices the camera ignores."""
     manual_shots_s: tuple[float, ...] = ()
     """Scenario times of shots fired by hand on the camera."""
+    manual_shots_between_triggers: bool = False
+    """Each manual shot is held for the next trigger pulse and taken half-way between two triggered exposures
+    (the device's `manual_shot between`): its phase to the trigger is then the same in every run, where a
+    shot at a fixed scenario time lands anywhere in the trigger's interval (the capture's start comes over a
+    real link). False: at the scenario time as written, which may fall within a trigger's shutter lag."""
     device_unplugs_s: tuple[Window, ...] = ()
     """[start_s, duration_s] of USB unplugs."""
     autopilot_link_drops_s: tuple[Window, ...] = ()
@@ -812,6 +817,7 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<memory>") -> Scenari
     faults = Faults(
         camera_missed_triggers=f.integers("camera_missed_triggers", min_value=1),
         manual_shots_s=f.numbers("manual_shots_s", min_value=0.0),
+        manual_shots_between_triggers=f.boolean("manual_shots_between_triggers", False),
         device_unplugs_s=f.pairs("device_unplugs_s", second_after_first=False),
         autopilot_link_drops_s=f.pairs("autopilot_link_drops_s", second_after_first=True),
     )

@@ -241,7 +241,7 @@ class SimSession:
     def _schedule_faults(self) -> None:
         sc = self.scenario
         for tau in sc.faults.manual_shots_s:
-            self._at(tau, "manual_shot")
+            self._at(tau, "manual_shot between" if sc.faults.manual_shots_between_triggers else "manual_shot")
         if sc.link.drop_probability or sc.link.flip_probability:
             self._at(0.0, f"impair drop={sc.link.drop_probability} flip={sc.link.flip_probability}")
         for start, duration in sc.faults.device_unplugs_s:  # [start_s, duration_s]

@@ -10,12 +10,23 @@ CLANGXX ?= $(shell command -v clang++-14 || command -v clang++)
 RUFF   := $(VENV)/bin/ruff check --config host/pyproject.toml
 PY_SOURCES := host tests protocol benchmarks
 
-.PHONY: all test demo bench build venv generate vectors lint fuzz clean help
+.PHONY: all test test-fast demo bench build venv generate vectors lint fuzz clean help
+# pytest-xdist: one worker per core; a module's tests, and the modules sharing a session flight, stay on
+# one worker (tests/conftest.py), so each simulated flight is flown once.
+PYTEST := ICGT_BUILD_DIR=$(BUILD) $(VENV)/bin/pytest -q --timeout 600 -p no:cacheprovider -n auto --dist loadgroup
+# The inner loop's Python tests: none of them flies the simulator in real time.
+FAST_TESTS := tests/clocks tests/conformance tests/device tests/geometry tests/geotag tests/host tests/sync \
+  tests/recorder/test_config_schema.py tests/recorder/test_step_schedule.py tests/recorder/test_payloads.py \
+  tests/report/test_report_units.py tests/export/test_export_units.py tests/mapping/test_mapping_units.py \
+  tests/ingest/test_ingest_match_properties.py::test_random_cards_never_pair_wrongly \
+  tests/ingest/test_ingest_match_properties.py::test_centisecond_cards_pair_every_image \
+  tests/mavlink/test_udp_arrival_stamps.py tests/sim/test_sim_geodesy.py tests/sim/test_sim_trajectory.py
 
 all: test
 
 help:
 	@echo "make test   - build everything and run every C++ and Python test"
+	@echo "make test-fast - the inner loop: lint, the C++ tests, the Python unit tests (no simulated flight)"
 	@echo "make demo   - run the main job on the simulated hardware"
 	@echo "make bench  - print benchmark figures next to their peers"
 	@echo "make generate / make vectors - rewrite generated code / test vectors after editing protocol/messages.toml"
@@ -69,8 +80,13 @@ firmware-checks:
 
 test: venv build lint fuzz firmware-checks
 	ctest --test-dir $(BUILD) --output-on-failure
-	ICGT_BUILD_DIR=$(BUILD) $(VENV)/bin/pytest -q --timeout 600 -p no:cacheprovider tests
+	$(PYTEST) tests
 	.ci/min_versions.sh
+
+# Under two minutes: what a change most often breaks, without the real-time flights, fuzzing or cross builds.
+test-fast: venv build lint
+	ctest --test-dir $(BUILD) --output-on-failure
+	$(PYTEST) $(FAST_TESTS)
 
 # The lower bounds of host/pyproject.toml installed exactly, in build/venv-min, with the export tests.
 .PHONY: min-versions

@@ -39,3 +39,24 @@ def export_flight(tmp_path_factory: pytest.TempPathFactory) -> object:
 def _match_cache(tmp_path_factory: pytest.TempPathFactory) -> None:
     """Matches kept by `icgt match` for `icgt export` go to a per-session folder, never the user's cache."""
     os.environ["ICGT_MATCH_CACHE"] = str(tmp_path_factory.mktemp("match_cache"))
+
+
+# Directories whose test files share one session fixture (a simulated flight flown once): under pytest-xdist
+# their files go to one worker, so the flight is flown once, not once per worker.
+_SHARED_FLIGHT_DIRS = {
+    "ingest": "ingest_flight",
+    "export": "export_flight",
+    "report": "export_flight",
+    "mapping": "damage_flight",
+    "trajectories": "trajectory_flight",
+}
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist's own hook, which reads the groups into the test ids
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """xdist groups (`make test` runs `--dist loadgroup`): a module's tests stay together (its module-scoped
+    flight is flown once), and the modules of a directory that shares a session flight stay together."""
+    for item in items:
+        rel = Path(str(item.fspath)).resolve().relative_to(ROOT / "tests")
+        group = _SHARED_FLIGHT_DIRS.get(rel.parts[0], str(rel)) if len(rel.parts) > 1 else str(rel)
+        item.add_marker(pytest.mark.xdist_group(group))

@@ -111,6 +111,12 @@ def _cmd_recover(args: argparse.Namespace) -> int:
     report = recover(src, dst)
     print(report.describe())
     # 1: damaged records or chunks in the middle were skipped (data may be lost); a cut-off tail is what a crash leaves
+    if report.lossy:
+        print(
+            f"icgt recover: {src}: damage inside the file was skipped ({len(report.skipped)} byte ranges, "
+            f"{report.chunks_damaged} chunks; offsets above): the messages there are lost",
+            file=sys.stderr,
+        )
     return 1 if report.lossy else 0
 
 

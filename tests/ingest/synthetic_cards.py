@@ -69,3 +69,33 @@ def capture(params: dict[str, Any]) -> tuple[list[FrameRecord], list[ImageTime],
         images.append(ImageTime(path, None, None) if untimed else ImageTime(path, (camera // res) * res, res))
         truth[path] = frame.frame_seq if frame is not None else None
     return frames, images, truth
+
+
+def composed_card(
+    params: dict[str, Any],
+    other: dict[str, Any] | None,
+    cut: tuple[float, float],
+    other_after: bool,
+    shift_s: float,
+    step_s: float,
+) -> tuple[list[FrameRecord], list[ImageTime], dict[Path, int | None]]:
+    """A card that holds more than the log: the log keeps only the frames of `capture(params)` from fraction
+    cut[0] to cut[1] (a recorder that started late or died), and the card may hold a second flight
+    (`other`, not in the log) `shift_s` before or after it, its camera clock stepped by `step_s` (a reset, a
+    daylight-saving change). Returns the log's frames, the card in card order and the truth."""
+    frames, images, truth = capture(params)
+    a, b = round(len(frames) * cut[0]), round(len(frames) * cut[1])
+    kept = frames[a : max(b, a + 1)]
+    keep = {f.frame_seq for f in kept}
+    truth = {p: (s if s in keep else None) for p, s in truth.items()}
+    if other is None:
+        return kept, images, truth
+    _, images2, _ = capture(other)
+    move = (shift_s if other_after else -shift_s) + step_s
+    extra = [
+        ImageTime(Path(f"B{t.path.name}"), None if t.time_s is None else t.time_s + move, t.resolution_s)
+        for t in images2
+    ]
+    card = images + extra if other_after else extra + images
+    truth.update({t.path: None for t in extra})
+    return kept, card, truth

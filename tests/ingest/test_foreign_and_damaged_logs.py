@@ -55,6 +55,26 @@ def test_protobuf_frames_channel_is_not_an_icgt_recording(tmp_path: Path, capsys
         assert "not an ICGT recording" in err and "Traceback" not in err
 
 
+def test_a_json_frames_channel_of_another_schema_is_not_an_icgt_recording(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 36: a foreign JSON /frames topic is "not an ICGT recording", and the refused export leaves no folder."""
+    path = tmp_path / "foreign_json.mcap"
+    with McapRecorder(path, fsync=False) as rec:
+        rec.register_json("/frames", "acme.Frame", {"type": "object"})
+        for i in range(3):
+            rec.write("/frames", {"id": i, "lat": 1.0}, T0 + i)
+    with pytest.raises(
+        IngestError, match=r"not an ICGT recording: its /frames channel has the JSON schema 'acme.Frame'"
+    ):
+        list(read(path).frames())
+    out = tmp_path / "out"
+    assert main(["export", str(path), "--out", str(out), "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    assert "not an ICGT recording" in err and "Traceback" not in err
+    assert not out.exists(), f"the refused export left {sorted(p.name for p in out.iterdir())} behind"
+
+
 def test_mcap_without_frames_or_icgt_metadata_says_so(tmp_path: Path) -> None:
     path = tmp_path / "other.mcap"
     with McapRecorder(path, fsync=False) as rec:

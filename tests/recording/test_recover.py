@@ -96,6 +96,8 @@ def test_corrupt_chunk_in_the_middle_is_skipped(tmp_path: Path) -> None:
     bad.write_bytes(bytes(data))
     report = recover(bad, tmp_path / "fixed.mcap")
     assert report.chunks_damaged == 1 and report.chunks_kept == 5 and report.messages == 200
+    assert [offset for offset, _why in report.damaged_chunks] == [third]
+    assert f"damaged chunk at byte {third} skipped" in report.describe()
     lats = [m[3].latitude for m in read_complete(tmp_path / "fixed.mcap").messages]
     assert lats == [float(n) for n in range(240) if not 80 <= n < 120]
 
@@ -195,3 +197,21 @@ def test_overwritten_bytes_between_chunks_and_a_damaged_chunk(tmp_path: Path) ->
     assert report.messages == 200 and report.chunks_kept == 5 and report.skipped[0][1] == chunks[2]
     lats = [m[3].latitude for m in read_complete(tmp_path / "fixed.mcap").messages]
     assert lats == [float(n) for n in range(240) if not 40 <= n < 80]
+
+
+def test_the_command_names_the_damage_of_a_complete_file_on_stderr(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A file with its footer but a damaged chunk inside: not "already complete"; exit 1, the offset said."""
+    from icgt.cli import main
+
+    src = _recording(tmp_path / "src.mcap", finish=True)
+    data = bytearray(src.read_bytes())
+    third = _find_chunks(bytes(data))[2]
+    data[third + 60 : third + 70] = b"\xff" * 10
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    assert main(["recover", str(bad), str(tmp_path / "fixed.mcap")]) == 1
+    out, err = capsys.readouterr()
+    assert "already complete" not in out and "had its end (footer) but damage inside" in out
+    assert f"damaged chunk at byte {third}" in out and "damage inside the file was skipped" in err

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import contextlib
 import logging
 import sys
 from collections.abc import Iterable, Mapping, Sequence
@@ -284,7 +285,33 @@ def run_export(
     geoid_separation: float | str | None = "auto",
     progress: bool = False,
 ) -> ExportResult:
-    """The whole export (the CLI without argparse). Raises IcgtError only for problems with the whole run."""
+    """The whole export (the CLI without argparse). Raises IcgtError only for problems with the whole run;
+    an `out_dir` it created for a run refused that way is removed again if nothing was written to it."""
+    created = not out_dir.exists()
+    try:
+        return _run_export(
+            log_path, out_dir, images=images, formats=formats, calibration=calibration, plane=plane, anchor=anchor,
+            geoid_separation=geoid_separation, progress=progress,
+        )  # fmt: skip
+    except IcgtError:
+        if created:
+            with contextlib.suppress(OSError):  # not empty, or not ours to remove: left as it is
+                out_dir.rmdir()
+        raise
+
+
+def _run_export(
+    log_path: Path,
+    out_dir: Path,
+    *,
+    images: Path | None,
+    formats: Sequence[str],
+    calibration: Path | None,
+    plane: Plane | None,
+    anchor: str,
+    geoid_separation: float | str | None,
+    progress: bool,
+) -> ExportResult:
     from tqdm import tqdm
 
     from icgt.export.common import ProblemLog, check_out_dir, prepare_items

@@ -122,7 +122,10 @@ def decode_frame(data: Mapping[str, Any]) -> FrameRecord:
             if k.base is float:
                 value = math.inf
             else:
-                raise IngestError(f"a frame record without {k.name!r}: not a /frames record of this icgt version")
+                raise IngestError(
+                    f"a frame record without {k.name!r}: not an ICGT recording, or one of an icgt version "
+                    "this one cannot read"
+                )
         kwargs[k.name] = value
     try:
         return FrameRecord(**kwargs)
@@ -374,6 +377,13 @@ class Recording:
         channels = self._channels()
         frames = [c for c in channels if c[0] == FRAMES_TOPIC]
         foreign = [c for c in frames if c[1] != "json"]
+        other_schema = [c for c in frames if c[1] == "json" and c[2] and not str(c[2]).startswith("icgt.")]
+        if other_schema and not foreign:
+            topic, _encoding, schema = other_schema[0]
+            raise IngestError(
+                f"{self.path}: not an ICGT recording: its {topic} channel has the JSON schema {schema!r}, "
+                "ICGT records frames as icgt.FrameRecord"
+            )
         if foreign:
             topic, encoding, schema = foreign[0]
             raise IngestError(

@@ -90,6 +90,9 @@ class RecoveryReport:
     good_bytes: int = 0  # the source is intact up to this offset (end of the last complete record)
     chunks_kept: int = 0
     chunks_damaged: int = 0
+    damaged_chunks: list[tuple[int, str]] = field(default_factory=list)
+    """(offset in the source [bytes], why) of each chunk skipped because its content is damaged."""
+    current_offset: int = 0  # of the record being copied (while recover() runs)
     messages_without_channel: int = 0
     metadata_records: int = 0
     attachments: int = 0
@@ -113,12 +116,18 @@ class RecoveryReport:
         return sum(self.messages_per_topic.values())
 
     def describe(self) -> str:
+        if self.source_was_complete:
+            state = "had its end (footer) but damage inside" if self.lossy else "was already complete"
+        else:
+            state = "was unfinished"
         lines = [
             f"{self.source} -> {self.destination}: {self.messages} messages in {self.chunks_kept} chunks, "
             f"from {iso_utc(self.first_log_time_ns)} to {iso_utc(self.last_log_time_ns)}",
-            f"source {'was already complete' if self.source_was_complete else 'was unfinished'}: {self.end_reason}; "
+            f"source {state}: {self.end_reason}; "
             f"{self.bytes_discarded} bytes of damaged tail discarded, {self.chunks_damaged} damaged chunks skipped",
         ]
+        for offset, why in self.damaged_chunks:
+            lines.append(f"damaged chunk at byte {offset} skipped (its messages are lost): {why}")
         for start, end, why in self.skipped:
             lines.append(f"skipped bytes {start}-{end} ({end - start} bytes): {why}")
         if self.messages_without_channel:
@@ -247,6 +256,7 @@ def _walk(buf: bytes | mmap.mmap, size: int, report: RecoveryReport) -> Iterator
             report.skipped.append((pos, nxt, str(exc)))
             pos = nxt
             continue
+        report.current_offset = pos
         pos = end
         report.good_bytes = end
         yield record
@@ -310,8 +320,9 @@ def _copy_record(
     if isinstance(record, Chunk):
         try:
             inner = breakup_chunk(record, validate_crc=True)
-        except Exception:  # a corrupt chunk (bad CRC, bad compression) is skipped, not fatal
+        except Exception as exc:  # a corrupt chunk (bad CRC, bad compression) is skipped, not fatal
             report.chunks_damaged += 1
+            report.damaged_chunks.append((report.current_offset, str(exc) or type(exc).__name__))
             return
         report.chunks_kept += 1
         for item in inner:

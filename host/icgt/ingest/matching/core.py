@@ -8,6 +8,7 @@ from pathlib import Path
 
 from icgt.geotag.record import FrameRecord
 from icgt.ingest.matching.clock import offset_candidates
+from icgt.ingest.matching.evidence import evidence_reach, judge
 from icgt.ingest.matching.exif import list_images, read_image_times
 from icgt.ingest.matching.report import report
 from icgt.ingest.matching.results import (
@@ -19,7 +20,7 @@ from icgt.ingest.matching.results import (
     UnmatchedImage,
 )
 from icgt.ingest.matching.rules import swap_rule, untimed_rule
-from icgt.ingest.matching.search import grid, refine, scan, settle
+from icgt.ingest.matching.search import MAX_SCAN_S, grid, refine, scan, settle
 from icgt.ingest.matching.state import Card, Model, Outcome, frames_from
 
 FIRST_PASS_WIDEN_MAX_S = 0.05
@@ -64,6 +65,13 @@ def match_times(
     # the part near where the offset fits best, and the drift fitted there extends it to the rest.
     widen = min(max_drift_ppm * 1e-6 * span, FIRST_PASS_WIDEN_MAX_S)
     candidates = offset_candidates(images, fr, widen)
+    # Offsets many intervals away are judged by the whole overlap's pattern first (evidence.py): only the
+    # neighbourhood of the one the card supports is aligned, or none when the card does not single one out.
+    reach = grid(fr, card, time_tolerance_s, coarse=False)[1]
+    verdict = judge(card, fr, evidence_reach(card, fr, reach, time_tolerance_s, MAX_SCAN_S), widen)
+    if verdict is not None and verdict.decided:
+        near_best = [c for c in candidates if verdict.admits(c.offset, reach)]
+        candidates = near_best or [Model(verdict.best.offset_s, 0.0)]
     if not candidates:
         result.notes.append("no image has an EXIF time: images can only be placed by order")
         candidates = [Model(0.0, 0.0)]
@@ -131,6 +139,14 @@ def match_times(
             note = "the camera clock offset is ambiguous: the pairs that depend on it are not made"
             if note not in result.notes:
                 result.notes.append(note)
+    if verdict is not None and not verdict.decided:
+        why = "the camera clock offset is not decided (see the notes): not paired by its time"
+        for i in list(outcome.pairs):
+            if card.has_time(i):
+                outcome.ambiguous[i] = ([outcome.pairs[i]], why)
+                outcome.frame_ambiguous.add(outcome.pairs[i])
+                del outcome.pairs[i]
+        result.notes.append(verdict.note())
     swap_rule(images, fr, model, outcome)
     untimed_rule(images, fr, outcome)
     report(images, fr, model, outcome, result)

@@ -1,0 +1,168 @@
+"""Which camera clock offsets the card allows at all: a check over every offset, that steady triggers cannot alias.
+
+The alignment (`align`) finds the best pairing near a candidate offset and `search.scan` compares the offsets
+around it. Neither sees an offset many intervals away, and when the card holds more images than the log (the
+recorder stopped while the camera kept shooting, images from before the recording, two flights on one card)
+such an offset can explain the card at the same alignment cost: the log's exposures laid on another run of
+images, every image paired, all of them wrongly. What tells the offsets apart is the pattern of the overlap:
+a missed trigger, a pause between passes, the ends of a burst. So every offset that the votes of image and
+exposure times propose is scored by its contradictions over the whole overlap:
+
+- an exposure the device triggered (and the camera did not report missing) with no image whose EXIF window
+  admits it: 1 (the alignment charges an unconfirmed trigger less; here it counts in full, since a shift by a
+  few intervals at the ends of a log is told from the truth only by such exposures);
+- an image inside the log's span (between its first and last exposure) that no exposure fits: 1 (a shift
+  that lays a missed trigger of the log on an image of the card is as unlikely as one that lays an exposure
+  on a missing image);
+- an image outside the log's span: 1/4. A card that outnumbers the log is expected: those images cost the
+  same under every offset that keeps the log inside the card. But at the ends of a log that covers the whole
+  card, a shift by a few intervals leaves images outside that the truth pairs, and only they (with the
+  exposures left without an image) tell the shift from the truth.
+
+An offset is accepted only when every offset outside its neighbourhood (`evidence_reach`: there the
+alignment's cost and `search.scan` decide) has at least OFFSET_MARGIN more contradictions; otherwise no pair
+is made by time, and the note gives the candidates and their scores.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from icgt.ingest.matching.state import Card, FloatArray, Frames
+
+OFFSET_MARGIN = 2.0
+"""Contradictions (a triggered exposure without an image: 1, an image inside the log without an exposure:
+EXTRA_IMAGE_WEIGHT) by which an offset must beat every offset outside its neighbourhood to be accepted."""
+EXTRA_IMAGE_WEIGHT = 1.0
+"""An image inside the log's span without an exposure, against a triggered exposure without an image."""
+OUTSIDE_IMAGE_WEIGHT = 0.25
+"""An image outside the log's span (before its first or after its last exposure)."""
+MAX_VOTE_IMAGES = 400
+"""Images whose times vote for offsets (evenly spread over the card); every eligible exposure votes with each."""
+MAX_OFFSETS = 1500
+"""Offsets scored, the most voted for."""
+
+
+@dataclass(frozen=True)
+class OffsetScore:
+    offset_s: float
+    """Camera minus recording time at the recording's first exposure [s] (as `Model.offset`)."""
+    contradictions: float
+    """Weighted contradictions over the overlap (see OFFSET_MARGIN)."""
+    overlap: int
+    """Confirmed exposures that found an image."""
+
+
+@dataclass(frozen=True)
+class Verdict:
+    best: OffsetScore
+    rivals: list[OffsetScore]
+    """The best offset of each other neighbourhood within OFFSET_MARGIN of the best, best first."""
+
+    @property
+    def decided(self) -> bool:
+        return not self.rivals
+
+    def admits(self, offset_s: float, reach_s: float) -> bool:
+        """Is `offset_s` in the neighbourhood of the accepted offset?"""
+        return abs(offset_s - self.best.offset_s) <= reach_s
+
+    def note(self) -> str:
+        listed = ", ".join(
+            f"{s.offset_s - self.best.offset_s:+.3f} s ({s.contradictions:g} contradictions, {s.overlap} exposures)"
+            for s in self.rivals[:4]
+        )
+        return (
+            "the camera clock offset is not decided: offsets many intervals apart explain the card about as well "
+            f"(best: {self.best.contradictions:g} contradictions over {self.best.overlap} exposures; relative to "
+            f"it {listed}; an offset must beat every other by {OFFSET_MARGIN:g}): no image is paired by its time"
+        )
+
+
+def contradictions(card: Card, fr: Frames, offsets: FloatArray, slack_s: float) -> tuple[FloatArray, FloatArray]:
+    """Per offset (drift 0, windows padded by `slack_s` more): weighted contradictions and exposures paired."""
+    ti = card.timed
+    lo_all = card.c[ti]
+    hi_all = card.c[ti] + card.r[ti]
+    order = np.argsort(lo_all, kind="stable")
+    lo, hi = lo_all[order], hi_all[order]
+    xe = fr.x[fr.eligible]
+    w_frame = np.ones(len(xe))
+    w_image = EXTRA_IMAGE_WEIGHT
+    tol = float(np.median(fr.tol)) + slack_s
+    hi_run = np.maximum.accumulate(hi) if len(hi) else hi
+    out_c = np.zeros(len(offsets))
+    out_n = np.zeros(len(offsets))
+    if not len(xe) or not len(lo):
+        return out_c + float(w_frame.sum()), out_n
+    for k in range(0, len(offsets), 64):
+        o = offsets[k : k + 64, None]
+        p = xe[None, :] + o  # the exposures on the camera's clock
+        # an exposure fits an image if some window [lo - tol, hi + tol] contains it: the last window starting
+        # at or before p + tol must end at or after p - tol (hi_run: the greatest end so far)
+        idx = np.searchsorted(lo, p + tol, side="right") - 1
+        fits = (idx >= 0) & (hi_run[np.maximum(idx, 0)] >= p - tol)
+        missing = ((~fits) * w_frame[None, :]).sum(axis=1)
+        # an image fits an exposure if one lies in its window; only images inside the log's span count
+        pe = np.sort(p, axis=1)
+        # one search for all rows: row r's values and queries lifted by r * lift keep the rows apart
+        lift = float(max(pe.max(), hi.max()) - min(pe.min(), lo.min()) + 4.0 * tol + 1.0)
+        rows = np.arange(pe.shape[0])[:, None] * lift
+        flat = np.searchsorted((pe + rows).ravel(), ((lo[None, :] - tol) + rows).ravel(), side="left")
+        a = flat.reshape(pe.shape[0], len(lo)) - np.arange(pe.shape[0])[:, None] * pe.shape[1]
+        has = (a < pe.shape[1]) & (np.take_along_axis(pe, np.minimum(a, pe.shape[1] - 1), axis=1) <= hi[None, :] + tol)
+        inside = (hi[None, :] >= pe[:, :1] - tol) & (lo[None, :] <= pe[:, -1:] + tol)
+        extra = (inside & ~has).sum(axis=1) * w_image + (~inside).sum(axis=1) * OUTSIDE_IMAGE_WEIGHT
+        out_c[k : k + 64] = missing + extra
+        out_n[k : k + 64] = fits.sum(axis=1)
+    return out_c, out_n
+
+
+def evidence_reach(card: Card, fr: Frames, scan_reach_s: float, tolerance_s: float, max_scan_s: float) -> float:
+    """Offsets this close to the best are its neighbourhood [s]: at least as far as the scan around the fit reaches,
+    and a whole EXIF interval and two trigger intervals where the scan's cap allows (a shift by about one EXIF
+    interval of coarse times moves too few exposures past the log's ends to be told apart by contradictions:
+    the alignment's cost, which pairs one image with one exposure, tells it)."""
+    xe = fr.x[fr.eligible]
+    dt = float(np.median(np.diff(xe))) if len(xe) >= 2 else 0.0
+    r_max = float(card.r[card.timed].max()) if len(card.timed) else 0.0
+    return max(scan_reach_s, min(max_scan_s, r_max + 2.0 * dt + 2.0 * tolerance_s))
+
+
+def judge(card: Card, fr: Frames, reach_s: float, slack_s: float) -> Verdict | None:
+    """Score the offsets the times vote for; None when nothing can be judged (no timed image or exposure)."""
+    ti = card.timed
+    xe = fr.x[fr.eligible]
+    if not len(ti) or not len(xe):
+        return None
+    pick = ti[np.linspace(0, len(ti) - 1, min(len(ti), MAX_VOTE_IMAGES)).round().astype(np.int64)]
+    mids = card.c[pick] + card.r[pick] / 2.0
+    votes = (mids[:, None] - xe[None, :]).ravel()
+    # Bins as fine as the finest EXIF times need (three points per bin, each within the tolerance of
+    # any offset in it): a card of 10 ms times beside one of 1 s times must not lose its exact offset.
+    r_min = float(card.r[ti].min())
+    q = max(2.0 * float(np.median(fr.tol)) + 2.0 * slack_s, r_min / 2.0, 0.01)
+    bins, counts = np.unique(np.floor(votes / q), return_counts=True)
+    top = bins[np.argsort(-counts, kind="stable")[:MAX_OFFSETS]]
+    # three points per bin: the optimum may lie anywhere in a bin of 1 s EXIF times
+    offsets = np.concatenate([(top + f) * q for f in (0.2, 0.5, 0.8)])
+    score, overlap = contradictions(card, fr, offsets, slack_s)
+    # Only offsets under which the log and the card overlap at all can be judged (an exposure paired).
+    useful = overlap > 0
+    if not useful.any():
+        return None
+    offsets, score, overlap = offsets[useful], score[useful], overlap[useful]
+    order = np.lexsort((-overlap, score))
+    best = OffsetScore(float(offsets[order[0]]), float(score[order[0]]), int(overlap[order[0]]))
+    rivals: list[OffsetScore] = []
+    seen = [best.offset_s]
+    for k in order[1:]:
+        if score[k] > best.contradictions + OFFSET_MARGIN - 1e-9:
+            break
+        o = float(offsets[k])
+        if all(abs(o - s) > reach_s for s in seen):
+            seen.append(o)
+            rivals.append(OffsetScore(o, float(score[k]), int(overlap[k])))
+    return Verdict(best, rivals)

@@ -91,7 +91,17 @@ def composed_card(
     if other is None:
         return kept, images, truth
     _, images2, _ = capture(other)
-    move = (shift_s if other_after else -shift_s) + step_s
+    # `shift_s` is the gap between the two flights: between A's last image and B's first (or B's last and A's
+    # first), on the true clock; the step then moves B's camera times (by less than the gap in the tests:
+    # flights whose camera times interleave on one card are left to a session split)
+    t_a = [t.time_s for t in images if t.time_s is not None]
+    t_b = [t.time_s for t in images2 if t.time_s is not None]
+    if not t_a or not t_b:
+        move = (shift_s if other_after else -shift_s) + step_s
+    elif other_after:
+        move = max(t_a) - min(t_b) + shift_s + step_s
+    else:
+        move = min(t_a) - max(t_b) - shift_s + step_s
     extra = [
         ImageTime(Path(f"B{t.path.name}"), None if t.time_s is None else t.time_s + move, t.resolution_s)
         for t in images2

@@ -209,7 +209,7 @@ _compositions = st.fixed_dictionaries(
         "cut": st.sampled_from([(0.0, 1.0), (0.0, 0.5), (0.0, 0.1), (0.5, 1.0), (0.3, 0.8), (0.05, 0.95)]),
         "other": st.one_of(st.none(), _captures.map(lambda p: {**p, "test_shot": False})),
         "other_after": st.booleans(),
-        "shift_s": st.sampled_from([60.0, 600.0, 7200.0]),
+        "shift_s": st.sampled_from([60.0, 600.0, 7200.0]),  # the gap between the flights (> any clock step)
         "step_s": st.sampled_from([0.0, 3600.0, -3600.0, 37.0, -37.0]),
     }
 )

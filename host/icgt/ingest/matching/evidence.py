@@ -14,10 +14,8 @@ exposure times propose is scored by its contradictions over the whole overlap:
 - an image inside the log's span (between its first and last exposure) that no exposure fits: 1 (a shift
   that lays a missed trigger of the log on an image of the card is as unlikely as one that lays an exposure
   on a missing image);
-- an image outside the log's span: 1/4. A card that outnumbers the log is expected: those images cost the
-  same under every offset that keeps the log inside the card. But at the ends of a log that covers the whole
-  card, a shift by a few intervals leaves images outside that the truth pairs, and only they (with the
-  exposures left without an image) tell the shift from the truth.
+- an image outside the log's span: nothing. A card that outnumbers the log is expected. (Weighing them,
+  even lightly, makes laying the log on a larger flight of the card look cheaper than on its own.)
 
 An offset is accepted only when every offset outside its neighbourhood (`evidence_reach`: there the
 alignment's cost and `search.scan` decide) has at least OFFSET_MARGIN more contradictions; otherwise no pair
@@ -37,8 +35,6 @@ OFFSET_MARGIN = 2.0
 EXTRA_IMAGE_WEIGHT) by which an offset must beat every offset outside its neighbourhood to be accepted."""
 EXTRA_IMAGE_WEIGHT = 1.0
 """An image inside the log's span without an exposure, against a triggered exposure without an image."""
-OUTSIDE_IMAGE_WEIGHT = 0.25
-"""An image outside the log's span (before its first or after its last exposure)."""
 MAX_VOTE_IMAGES = 400
 """Images whose times vote for offsets (evenly spread over the card); every eligible exposure votes with each."""
 MAX_OFFSETS = 1500
@@ -75,7 +71,7 @@ class Verdict:
             for s in self.rivals[:4]
         )
         return (
-            "the camera clock offset is not decided: offsets many intervals apart explain the card about as well "
+            "the camera clock offset is not decided: offsets several intervals apart explain the card about as well "
             f"(best: {self.best.contradictions:g} contradictions over {self.best.overlap} exposures; relative to "
             f"it {listed}; an offset must beat every other by {OFFSET_MARGIN:g}): no image is paired by its time"
         )
@@ -114,7 +110,7 @@ def contradictions(card: Card, fr: Frames, offsets: FloatArray, slack_s: float) 
         a = flat.reshape(pe.shape[0], len(lo)) - np.arange(pe.shape[0])[:, None] * pe.shape[1]
         has = (a < pe.shape[1]) & (np.take_along_axis(pe, np.minimum(a, pe.shape[1] - 1), axis=1) <= hi[None, :] + tol)
         inside = (hi[None, :] >= pe[:, :1] - tol) & (lo[None, :] <= pe[:, -1:] + tol)
-        extra = (inside & ~has).sum(axis=1) * w_image + (~inside).sum(axis=1) * OUTSIDE_IMAGE_WEIGHT
+        extra = (inside & ~has).sum(axis=1) * w_image
         out_c[k : k + 64] = missing + extra
         out_n[k : k + 64] = fits.sum(axis=1)
     return out_c, out_n

@@ -104,7 +104,14 @@ class Rig:
 
     def ack(self, command, since, peer=None, timeout=2.0):
         peer = peer or self.gcs
-        return peer.wait_for("COMMAND_ACK", lambda m: m.command == command, timeout=timeout, since=since)
+        # Every peer hears every answer: only an ack addressed to this peer is its own (an intruder's refusal,
+        # read late on a loaded machine, was taken for the ground station's answer)
+        return peer.wait_for(
+            "COMMAND_ACK",
+            lambda m: m.command == command and getattr(m, "target_system", 0) in (0, peer.system),
+            timeout=timeout,
+            since=since,
+        )
 
     def close(self):
         self.gcs.close()

@@ -52,6 +52,11 @@ _SHARED_FLIGHT_DIRS = {
 }
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    # declared here too: the lower-bound venv (.ci/min_versions.sh) runs without pytest-xdist
+    config.addinivalue_line("markers", "xdist_group(name): tests run on one pytest-xdist worker (--dist loadgroup)")
+
+
 @pytest.hookimpl(tryfirst=True)  # before xdist's own hook, which reads the groups into the test ids
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """xdist groups (`make test` runs `--dist loadgroup`): a module's tests stay together (its module-scoped

@@ -176,8 +176,13 @@ def request(path: Path, message: Request, *, timeout_s: float = 5.0) -> Reply:
                     f"the control socket {path} is served by uid {server}, not by you (uid {os.getuid()}): "
                     "not sending it anything"
                 )
-            sock.sendall((json.dumps(message) + "\n").encode())
+            # A server that answers and closes before it takes the request (a refusal) breaks the pipe: its
+            # answer is still there to be read.
+            with contextlib.suppress(BrokenPipeError, ConnectionResetError):
+                sock.sendall((json.dumps(message) + "\n").encode())
             line = sock.makefile("r", encoding="utf-8").readline()
+            if not line:
+                raise ControlError(f"recorder at {path} closed the connection without answering")
     except FileNotFoundError as exc:
         raise ControlError(f"no recorder running (no control socket at {path})") from exc
     except OSError as exc:

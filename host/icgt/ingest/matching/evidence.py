@@ -48,7 +48,7 @@ class OffsetScore:
     contradictions: float
     """Weighted contradictions over the overlap (see OFFSET_MARGIN)."""
     overlap: int
-    """Confirmed exposures that found an image."""
+    """Eligible exposures that found an image under this offset."""
 
 
 @dataclass(frozen=True)

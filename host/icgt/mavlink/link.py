@@ -63,7 +63,14 @@ from icgt.mavlink.link_types import (
 )
 from icgt.mavlink.signing import SigningState
 from icgt.mavlink.transport import is_datagram, open_transport
-from icgt.mavlink.udp_stamps import SO_RXQ_OVFL, SO_TIMESTAMPNS, enable_stamps, wait_until_arrivals_stamped
+from icgt.mavlink.udp_stamps import (
+    SO_RXQ_OVFL,
+    SO_TIMESTAMPNS,
+    TIMESPEC,
+    enable_stamps,
+    stamps_enabled,
+    wait_until_arrivals_stamped,
+)
 
 __all__ = [
     "DEFAULT_STREAM_RATES",
@@ -86,12 +93,10 @@ log = logging.getLogger(__name__)
 
 # Linux's SO_TIMESTAMPNS / SCM_TIMESTAMPNS (Python's socket module does not name them): a struct timespec
 # of the datagram's arrival on CLOCK_REALTIME in the ancillary data of recvmsg.
-_SCM_TIMESTAMPNS = SO_TIMESTAMPNS
+_SCM_TIMESTAMPNS = SO_TIMESTAMPNS  # the control message's type is the option's number
 # SO_RXQ_OVFL: a datagram read after the kernel dropped some (receive buffer full) carries the socket's count of
 # drops so far (a u32) in its ancillary data.
-_SO_RXQ_OVFL = SO_RXQ_OVFL
 _CMSG_SPACE = socket.CMSG_SPACE(16) + socket.CMSG_SPACE(4)
-_TIMESPEC = struct.Struct("qq")  # struct timespec: tv_sec, tv_nsec
 _U32 = struct.Struct("I")
 _DRAIN_MAX = 1024  # datagrams read per wake-up, at most
 _PUMP_DRAINS = 8  # drains per pump() call, at most (owner-pumped links)
@@ -212,10 +217,12 @@ class MavlinkLink:
         got = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) // 2  # Linux reports twice what it books
         # The kernel's stamps are on the host clock only. A listening socket has them already, from before
         # its bind; an udpout one gets them before its first send, so before any answer can arrive.
-        if self._clock is time.monotonic_ns and enable_stamps(sock):
-            self._kernel_stamps = True
-            self._socket_drops = 0  # a new socket counts from 0
-            wait_until_arrivals_stamped()
+        if self._clock is time.monotonic_ns:
+            if not stamps_enabled(sock) and enable_stamps(sock):
+                wait_until_arrivals_stamped()
+            if stamps_enabled(sock):
+                self._kernel_stamps = True
+                self._socket_drops = 0  # a new socket counts from 0
         if got < want:
             log.warning("UDP receive buffer is %d bytes, %d asked (raise net.core.rmem_max to allow it)", got, want)
         self.receive_buffer_bytes = got
@@ -492,7 +499,7 @@ class MavlinkLink:
         passed on as batches, each ending where a decoded message comes in between (order kept)."""
         recvmsg = sock.recvmsg
         clock = self._clock
-        unpack = _TIMESPEC.unpack_from
+        unpack = TIMESPEC.unpack_from
         decode = self.config.decode_systems
         # Frames of our system or the autopilot's left undecoded take `_handle`'s per-message checks.
         bulk = decode is not None and not ({self.config.system_id, self._ap_system} - decode)
@@ -520,7 +527,7 @@ class MavlinkLink:
                         stamped = sec * 1_000_000_000 + nsec - offset_ns
                         if stamped < rx_ns:
                             rx_ns = stamped
-                    elif kind == _SO_RXQ_OVFL and len(payload) >= 4:
+                    elif kind == SO_RXQ_OVFL and len(payload) >= 4:
                         drops = _U32.unpack_from(payload)[0]
                 read += 1
                 if addr not in senders:  # before its frames are handled: an answer to them goes back to it

@@ -27,10 +27,18 @@ log = logging.getLogger(__name__)
 # Linux's values (Python's socket module does not name them).
 SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
-_TIMESPEC = struct.Struct("qq")  # struct timespec: tv_sec, tv_nsec
+TIMESPEC = struct.Struct("qq")  # struct timespec: tv_sec, tv_nsec
 
 PROBE_WAIT_S = 2.0
 """How long the bind waits for the kernel to stamp arrivals before it goes ahead without [s]."""
+
+
+def stamps_enabled(sock: socket.socket) -> bool:
+    """Has `sock` asked for arrival stamps already (a listening socket made by `stamped_udp_socket`)?"""
+    try:
+        return bool(sock.getsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS))
+    except OSError:
+        return False
 
 
 def enable_stamps(sock: socket.socket) -> bool:
@@ -57,7 +65,7 @@ def arrivals_stamped(probe: socket.socket) -> bool:
             continue
         for level, kind, payload in ancdata:
             if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(payload) >= 16:
-                sec, nsec = _TIMESPEC.unpack_from(payload)
+                sec, nsec = TIMESPEC.unpack_from(payload)
                 return bool(sec * 1_000_000_000 + nsec <= sent_ns)
         return False
     return False

@@ -92,7 +92,6 @@ class RecoveryReport:
     chunks_damaged: int = 0
     damaged_chunks: list[tuple[int, str]] = field(default_factory=list)
     """(offset in the source [bytes], why) of each chunk skipped because its content is damaged."""
-    current_offset: int = 0  # of the record being copied (while recover() runs)
     messages_without_channel: int = 0
     metadata_records: int = 0
     attachments: int = 0
@@ -243,7 +242,8 @@ def _next_chunk(buf: bytes | mmap.mmap, start: int, size: int) -> int | None:
     return None
 
 
-def _walk(buf: bytes | mmap.mmap, size: int, report: RecoveryReport) -> Iterator[McapRecord]:
+def _walk(buf: bytes | mmap.mmap, size: int, report: RecoveryReport) -> Iterator[tuple[int, McapRecord]]:
+    """(offset in the source [bytes], record) of each readable record, in file order."""
     pos = len(MAGIC)
     while pos < size:
         try:
@@ -256,10 +256,9 @@ def _walk(buf: bytes | mmap.mmap, size: int, report: RecoveryReport) -> Iterator
             report.skipped.append((pos, nxt, str(exc)))
             pos = nxt
             continue
-        report.current_offset = pos
-        pos = end
+        at, pos = pos, end
         report.good_bytes = end
-        yield record
+        yield at, record
         if isinstance(record, Footer):
             if bytes(buf[end : end + len(MAGIC)]) == MAGIC:
                 report.good_bytes = end + len(MAGIC)
@@ -279,7 +278,7 @@ def _copy(handle: IO[bytes], out: IO[bytes], report: RecoveryReport) -> None:
     try:
         try:
             report.good_bytes = len(MAGIC)
-            for record in _walk(buf, size, report):
+            for offset, record in _walk(buf, size, report):
                 if writer is None:
                     if not isinstance(record, Header):
                         raise RecordingError(f"{report.source} is not an MCAP file: it does not begin with a header")
@@ -289,7 +288,7 @@ def _copy(handle: IO[bytes], out: IO[bytes], report: RecoveryReport) -> None:
                     continue
                 if isinstance(record, Footer):
                     report.source_was_complete = not report.skipped
-                _copy_record(record, writer, channels, counts, report)
+                _copy_record(record, writer, channels, counts, report, offset)
             if writer is None:
                 raise RecordingError(f"{report.source} is not an MCAP file: {report.end_reason}")
             if not counts:
@@ -316,17 +315,19 @@ def _copy_record(
     channels: dict[int, Channel],
     counts: Counter[str],
     report: RecoveryReport,
+    offset: int,
 ) -> None:
+    """Copy one record (a chunk's messages one by one); `offset`: where it starts in the source [bytes]."""
     if isinstance(record, Chunk):
         try:
             inner = breakup_chunk(record, validate_crc=True)
         except Exception as exc:  # a corrupt chunk (bad CRC, bad compression) is skipped, not fatal
             report.chunks_damaged += 1
-            report.damaged_chunks.append((report.current_offset, str(exc) or type(exc).__name__))
+            report.damaged_chunks.append((offset, str(exc) or type(exc).__name__))
             return
         report.chunks_kept += 1
         for item in inner:
-            _copy_record(item, writer, channels, counts, report)
+            _copy_record(item, writer, channels, counts, report, offset)
     elif isinstance(record, Schema):
         writer.add_schema(record.id, record.name, record.encoding, record.data)
     elif isinstance(record, Channel):

@@ -7,7 +7,7 @@ import math
 from pathlib import Path
 
 from icgt.report import plots
-from icgt.report.summary import PLAUSIBLE_RADIUS_M, FlightData, ReportError, summarize
+from icgt.report.summary import OUTSIDE, FlightData, ReportError, summarize
 
 _CSS = """
 body { font-family: system-ui, sans-serif; margin: 1.5em auto; max-width: 1200px; color: #222; }
@@ -79,7 +79,7 @@ def _left_out_note(data: FlightData) -> str:
     parts = [f"{n} track samples: {why}" for why, n in data.track_left_out.items()]
     outside = plots.frames_outside(data)
     if outside:
-        parts.append(f"{outside} frames: over {PLAUSIBLE_RADIUS_M / 1000:.0f} km from the ENU origin")
+        parts.append(f"{outside} frames: {OUTSIDE}")
     if not parts:
         return '<p class="note" id="track-left-out">every track sample and frame position is drawn</p>'
     return f'<p class="note" id="track-left-out">not drawn: {html.escape("; ".join(parts))}</p>'

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from icgt.geotag.record import FrameRecord
 from icgt.report.summary import PLAUSIBLE_RADIUS_M, FlightData
 
 OK_COLOUR = "#1f77b4"
@@ -42,28 +43,21 @@ def _svg(fig: Any) -> str:
     return text[text.index("<svg") :]  # drop the XML prolog and DOCTYPE: the SVG goes inline in HTML
 
 
+def _plausible(r: FrameRecord) -> bool | None:
+    """Is the frame's position inside the plausible area (None: it has no position)?"""
+    if r.east_m is None or r.north_m is None or r.up_m is None:
+        return None
+    return math.hypot(r.east_m, r.north_m, r.up_m) <= PLAUSIBLE_RADIUS_M
+
+
 def frames_outside(data: FlightData) -> int:
     """Frames with a position outside the plausible area (not drawn)."""
-    return sum(
-        1
-        for r in data.frames
-        if r.east_m is not None
-        and r.north_m is not None
-        and r.up_m is not None
-        and math.hypot(r.east_m, r.north_m, r.up_m) > PLAUSIBLE_RADIUS_M
-    )
+    return sum(1 for r in data.frames if _plausible(r) is False)
 
 
 def _frame_xyz(data: FlightData) -> tuple[np.ndarray[Any, Any], np.ndarray[Any, Any]]:
     """(positions (N, 3) ENU [m] of frames that have one inside the plausible area, flagged mask)."""
-    rows = [
-        (r.east_m, r.north_m, r.up_m, bool(r.flags))
-        for r in data.frames
-        if r.east_m is not None
-        and r.north_m is not None
-        and r.up_m is not None
-        and math.hypot(r.east_m, r.north_m, r.up_m) <= PLAUSIBLE_RADIUS_M
-    ]
+    rows = [(r.east_m, r.north_m, r.up_m, bool(r.flags)) for r in data.frames if _plausible(r)]
     if not rows:
         return np.zeros((0, 3)), np.zeros(0, dtype=bool)
     arr = np.array([r[:3] for r in rows], dtype=float)

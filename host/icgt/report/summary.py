@@ -87,7 +87,7 @@ class FlightData:
     footprint_note: str = ""
     note: str | None = None
     track_left_out: dict[str, int] = field(default_factory=dict)
-    """Track samples not drawn, by reason ("no fix (latitude/longitude 0)", "outside the plausible area")."""
+    """Track samples not drawn, by reason (NO_FIX, OUTSIDE)."""
 
     def t_s(self, host_ns: int) -> float:
         return (host_ns - self.t0_host_ns) / 1e9

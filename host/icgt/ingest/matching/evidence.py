@@ -78,21 +78,19 @@ class Verdict:
 
 
 def contradictions(card: Card, fr: Frames, offsets: FloatArray, slack_s: float) -> tuple[FloatArray, FloatArray]:
-    """Per offset (drift 0, windows padded by `slack_s` more): weighted contradictions and exposures paired."""
+    """Per offset (drift 0, windows padded by `slack_s` more): contradictions and exposures paired."""
     ti = card.timed
     lo_all = card.c[ti]
     hi_all = card.c[ti] + card.r[ti]
     order = np.argsort(lo_all, kind="stable")
     lo, hi = lo_all[order], hi_all[order]
     xe = fr.x[fr.eligible]
-    w_frame = np.ones(len(xe))
-    w_image = EXTRA_IMAGE_WEIGHT
     tol = float(np.median(fr.tol)) + slack_s
     hi_run = np.maximum.accumulate(hi) if len(hi) else hi
     out_c = np.zeros(len(offsets))
     out_n = np.zeros(len(offsets))
     if not len(xe) or not len(lo):
-        return out_c + float(w_frame.sum()), out_n
+        return out_c + float(len(xe)), out_n
     for k in range(0, len(offsets), 64):
         o = offsets[k : k + 64, None]
         p = xe[None, :] + o  # the exposures on the camera's clock
@@ -100,7 +98,7 @@ def contradictions(card: Card, fr: Frames, offsets: FloatArray, slack_s: float) 
         # at or before p + tol must end at or after p - tol (hi_run: the greatest end so far)
         idx = np.searchsorted(lo, p + tol, side="right") - 1
         fits = (idx >= 0) & (hi_run[np.maximum(idx, 0)] >= p - tol)
-        missing = ((~fits) * w_frame[None, :]).sum(axis=1)
+        missing = (~fits).sum(axis=1)
         # an image fits an exposure if one lies in its window; only images inside the log's span count
         pe = np.sort(p, axis=1)
         # one search for all rows: row r's values and queries lifted by r * lift keep the rows apart
@@ -110,7 +108,7 @@ def contradictions(card: Card, fr: Frames, offsets: FloatArray, slack_s: float) 
         a = flat.reshape(pe.shape[0], len(lo)) - np.arange(pe.shape[0])[:, None] * pe.shape[1]
         has = (a < pe.shape[1]) & (np.take_along_axis(pe, np.minimum(a, pe.shape[1] - 1), axis=1) <= hi[None, :] + tol)
         inside = (hi[None, :] >= pe[:, :1] - tol) & (lo[None, :] <= pe[:, -1:] + tol)
-        extra = (inside & ~has).sum(axis=1) * w_image
+        extra = (inside & ~has).sum(axis=1) * EXTRA_IMAGE_WEIGHT
         out_c[k : k + 64] = missing + extra
         out_n[k : k + 64] = fits.sum(axis=1)
     return out_c, out_n

@@ -24,6 +24,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from icgt.clocks.device_clock import ClockNotSyncedError
 from icgt.geodesy import LocalFrame
+from icgt.geotag.bounds import AXIS_95, RADIAL_95
 from icgt.geotag.geotagger import GeotagConfig, Geotagger
 from icgt.geotag.record import FrameFlag, FrameRecord
 from icgt.mavlink.link import MavlinkMessage
@@ -45,6 +46,7 @@ TRIGGER_US = 10_000_000
 START_US = 10_040_000
 DURATION_US = 10_000
 MID_US = START_US + DURATION_US // 2
+CLOCK_S = 20_000e-9 + 300e-6  # the fake clocks' bounds: device -> host 20 us, host -> autopilot 300 us
 MID_BOOT_MS = (MID_US + DEV_TO_BOOT_US) / 1000  # 13045.0
 
 
@@ -288,7 +290,13 @@ def test_position_is_interpolated_at_mid_exposure():
     assert f.pose_gap_after_ms == pytest.approx(55.0)
     assert (f.position_source, f.fix_type) == ("gps_3d", 3)
     assert (f.h_acc_m, f.v_acc_m, f.satellites) == (pytest.approx(0.9), pytest.approx(1.5), 14)
-    assert f.position_error_bound_m == pytest.approx(3.0 * 0.1**2 / 32, abs=1e-3)
+    # 95 %: the receiver's h_acc / v_acc, the unseen acceleration over 100 ms, the 320 us clock bound x speed
+    speed_h, speed_v = math.hypot(v_ned[0], v_ned[1]), abs(v_ned[2])
+    unseen = 0.1**2 * 0.45 * 0.55 / 4
+    assert f.horizontal_error_bound_m == pytest.approx(RADIAL_95 * 0.9 + 1.0 * unseen + speed_h * CLOCK_S, rel=1e-3)
+    assert f.vertical_error_bound_m == pytest.approx(AXIS_95 * 1.5 + 0.5 * unseen + speed_v * CLOCK_S, rel=1e-3)
+    assert f.position_error_bound_m == pytest.approx(math.hypot(f.horizontal_error_bound_m, f.vertical_error_bound_m))
+    assert FrameFlag.STALE_POSE.value not in f.flags  # the gap's part is under a millimetre
 
 
 def test_position_follows_the_samples_velocities_between_them():
@@ -304,8 +312,11 @@ def test_position_follows_the_samples_velocities_between_them():
     h01, h11 = -2 * x**3 + 3 * x**2, x**3 - x**2
     assert f.north_m == pytest.approx(h01 * end[1] + h11 * 1.0 * 2.0, abs=1e-3)
     assert f.north_m != pytest.approx(x * end[1], abs=0.05)
-    assert f.position_error_bound_m == pytest.approx(2.0 * 1.0 / 8 + 3.0 / 32, abs=1e-3)
-    assert FrameFlag.STALE_POSE.value in f.flags  # bound 0.34 m above the 0.10 m default
+    # the bend the velocities show, |dv| T u (1-u) / 2, and the unseen acceleration A T^2 u (1-u) / 4
+    shape = x * (1 - x)
+    motion = 2.0 * 1.0 * shape / 2 + 1.0 * 1.0 * shape / 4
+    assert f.horizontal_error_bound_m == pytest.approx(RADIAL_95 * 0.9 + motion, abs=1e-3)
+    assert FrameFlag.STALE_POSE.value in f.flags  # the gap's part, 0.31 m, is above the 0.10 m default
 
 
 def test_origin_defaults_to_the_first_fix():
@@ -456,8 +467,13 @@ def test_frame_is_emitted_after_max_wait_moved_by_the_earlier_velocity_and_flagg
     assert rig.poll(mid + 1_999_999_999) == []
     (f,) = rig.poll(mid + 2_000_000_000)
     assert FrameFlag.POSE_EXTRAPOLATED.value in f.flags
-    assert FrameFlag.STALE_POSE.value not in f.flags  # 45 ms of dead reckoning: bound 3 mm
-    assert f.position_error_bound_m == pytest.approx(3.0 * 0.045**2 / 2, rel=1e-6)
+    assert FrameFlag.STALE_POSE.value not in f.flags  # 45 ms of dead reckoning: 4 mm
+    # (|a| + A) dt^2 / 2, with max_accel_m_s2 for |a| (no earlier sample shows it)
+    assert f.horizontal_error_bound_m == pytest.approx(
+        RADIAL_95 * 0.9 + (3.0 + 1.0) * 0.045**2 / 2 + 2.0 * CLOCK_S, rel=1e-6
+    )
+    assert f.vertical_error_bound_m == pytest.approx(AXIS_95 * 1.5 + (3.0 + 0.5) * 0.045**2 / 2, rel=1e-6)
+    assert f.position_source == "dead_reckoned"
     assert f.pose_gap_before_ms == pytest.approx(45.0)
     assert f.pose_gap_after_ms == math.inf
     held = np.asarray(LocalFrame(*ORIGIN).geodetic_to_enu((LAT_E7 + 300) * 1e-7, *ORIGIN[1:]))
@@ -472,17 +488,31 @@ def test_long_dead_reckoning_is_flagged_stale():
     rig.expose()
     (f,) = rig.poll(host_ns(MID_US) + 2_000_000_000)
     assert {FrameFlag.POSE_EXTRAPOLATED.value, FrameFlag.STALE_POSE.value} <= set(f.flags)
-    assert f.position_error_bound_m == pytest.approx(3.0 * 0.545**2 / 2, rel=1e-6)
+    assert f.horizontal_error_bound_m == pytest.approx(RADIAL_95 * 0.9 + (3.0 + 1.0) * 0.545**2 / 2, rel=1e-6)
+
+
+def test_no_position_beyond_the_extrapolation_horizon():
+    """0.8 s after the last sample with nothing after it: (3 + 1) 0.8^2 / 2 = 1.3 m > max_extrapolation_m (1 m).
+    No guess: no_pose, with the gap; the frame is placed once the later sample is there (a recompute)."""
+    rig = Rig(GeotagConfig(origin=ORIGIN, max_wait_ms=500.0))
+    rig.gps(12_200)
+    rig.pose(12_245)
+    rig.expose()
+    (f,) = rig.poll(host_ns(MID_US) + 2_000_000_000)
+    assert FrameFlag.NO_POSE.value in f.flags and FrameFlag.NO_FIX.value not in f.flags
+    assert (f.lat_deg, f.east_m, f.position_error_bound_m, f.position_source) == (None, None, None, "none")
+    assert f.pose_gap_before_ms == pytest.approx(800.0)
+    assert f.pose_gap_after_ms == math.inf
 
 
 @pytest.mark.parametrize(
     ("before_ms", "after_ms", "dv_north", "stale", "extrapolated"),
     [
         (13_000, 13_100, 0.0, False, False),  # bound 1 mm
-        (13_000, 13_100, 10.0, True, False),  # 10 m/s change of velocity in 100 ms: bound 0.13 m
-        (12_545, 13_545, 0.0, False, False),  # 1 s apart (a 1 Hz stream): bound 0.094 m
-        (12_445, 13_645, 0.0, True, False),  # 1.2 s: bound 0.135 m
-        (12_245, 13_845, 0.0, True, True),  # 1.6 s apart: beyond max_gps_gap_s, dead reckoning
+        (13_000, 13_100, 10.0, True, False),  # 10 m/s change of velocity in 100 ms: 0.12 m
+        (12_545, 13_545, 0.0, False, False),  # 1 s apart (a 1 Hz stream): the gap's part 0.07 m
+        (12_395, 13_695, 0.0, True, False),  # 1.3 s: 0.12 m
+        (12_245, 13_845, 0.0, True, False),  # 1.6 s apart: interpolated across the gap, 0.18 m
     ],
 )
 def test_stale_pose_flag_from_the_position_bound(before_ms, after_ms, dv_north, stale, extrapolated):

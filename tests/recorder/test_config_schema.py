@@ -96,6 +96,12 @@ def test_every_key_of_every_section_is_in_the_table() -> None:
         "max_gps_gap_s",
         "max_accel_m_s2",
         "local_drift_m_per_s",
+        "max_interpolation_gap_s",
+        "max_extrapolation_m",
+        "unseen_accel_h_m_s2",
+        "unseen_accel_v_m_s2",
+        "unseen_rate_rad_s2",
+        "attitude_accuracy_deg",
         "max_clock_uncertainty_us",
         "blur_limit_px",
     }, unchecked

@@ -22,11 +22,11 @@ from msgspec import Meta
 
 from icgt.errors import IcgtError
 from icgt.geodesy import LocalFrame, q_from_euler_zyx, q_multiply, q_rotate, q_slerp, q_to_euler_zyx
-from icgt.geotag.position import PositionRules, estimate_position
+from icgt.geotag.bounds import MotionAllowance
+from icgt.geotag.position import PoseGap, PositionEstimate, PositionRules, estimate_position
 from icgt.geotag.record import FrameFlag, FrameRecord, PositionSource
 from icgt.mavlink.telemetry import (
     AttitudeSample,
-    GpsSample,
     TelemetryBuffer,
     TelemetryStore,
 )
@@ -99,9 +99,16 @@ class GeotagConfig:
     range_stale_ms: Annotated[float, Meta(gt=0.0, le=10_000.0)] = 50.0
     stale_pose_ms: Annotated[float, Meta(gt=0.0)] = 100.0  # kept for old config files; the bound below decides
     max_position_error_m: Annotated[float, Meta(gt=0.0)] = 0.10  # a larger position bound flags stale_pose
-    max_gps_gap_s: Annotated[float, Meta(gt=0.0, le=60.0)] = 1.5  # farther apart: not interpolated
-    max_accel_m_s2: Annotated[float, Meta(ge=0.0, le=100.0)] = 3.0  # unseen acceleration, for the bound
+    max_gps_gap_s: Annotated[float, Meta(gt=0.0, le=60.0)] = 1.5  # a frame is held this long for the next fix
+    max_accel_m_s2: Annotated[float, Meta(ge=0.0, le=100.0)] = 3.0  # acceleration when no sample shows it
     local_drift_m_per_s: Annotated[float, Meta(ge=0.0, le=10.0)] = 0.05  # local frame drift since the anchor
+    # The error model (icgt.geotag.bounds, docs/error-bounds.md): every bound is a 95 % bound.
+    max_interpolation_gap_s: Annotated[float, Meta(gt=0.0, le=600.0)] = 10.0  # farther apart: not interpolated
+    max_extrapolation_m: Annotated[float, Meta(ge=0.0, le=1000.0)] = 1.0  # a larger guess: no position (no_pose)
+    unseen_accel_h_m_s2: Annotated[float, Meta(ge=0.0, le=100.0)] = 1.0  # acceleration change hidden in a gap
+    unseen_accel_v_m_s2: Annotated[float, Meta(ge=0.0, le=100.0)] = 0.5
+    unseen_rate_rad_s2: Annotated[float, Meta(ge=0.0, le=100.0)] = 0.5  # body-rate change hidden in a gap
+    attitude_accuracy_deg: Annotated[float, Meta(ge=0.0, le=90.0)] = 1.0  # the autopilot's attitude, 95 %
     max_wait_ms: Annotated[float, Meta(ge=0.0, le=10_000.0)] = 500.0
     max_clock_uncertainty_us: Annotated[float, Meta(gt=0.0)] = 1000.0  # a worse device->host bound flags it
     blur_limit_px: Annotated[float, Meta(gt=0.0)] = 1.0
@@ -134,6 +141,22 @@ def camera_to_body_quaternion(cfg: GeotagConfig) -> np.ndarray:
         math.radians(cfg.mount_roll_deg), math.radians(cfg.mount_pitch_deg), math.radians(cfg.mount_yaw_deg)
     )
     return np.asarray(q_multiply(mount, _Q_CAM_TO_BODY_BASE))
+
+
+def _source_of(pos: PositionEstimate | None) -> PositionSource:
+    """The frame's position source, named as it is: GPS (by its fix), the local position, or dead reckoning."""
+    if pos is None:
+        return PositionSource.NONE
+    if pos.rule == "local":
+        return PositionSource.LOCAL_POSITION
+    if pos.rule == "dead_reckoning":
+        return PositionSource.DEAD_RECKONED
+    gps = pos.gps
+    if gps is not None and gps.fix_type == 6:
+        return PositionSource.RTK_FIXED
+    if gps is not None and gps.fix_type == 5:
+        return PositionSource.RTK_FLOAT
+    return PositionSource.GPS_3D
 
 
 @dataclass(frozen=True, slots=True)
@@ -173,7 +196,17 @@ class Geotagger:
         self._cfg = config
         self._emit = emit
         self._q_cam_body = camera_to_body_quaternion(config)
-        self._rules = PositionRules(config.max_gps_gap_s, config.max_accel_m_s2, config.local_drift_m_per_s)
+        self._rules = PositionRules(
+            max_gps_gap_s=config.max_gps_gap_s,
+            max_accel_m_s2=config.max_accel_m_s2,
+            local_drift_m_per_s=config.local_drift_m_per_s,
+            max_interpolation_gap_s=config.max_interpolation_gap_s,
+            max_extrapolation_m=config.max_extrapolation_m,
+            allowance=MotionAllowance(
+                config.unseen_accel_h_m_s2, config.unseen_accel_v_m_s2, config.unseen_rate_rad_s2
+            ),
+        )
+        self._lever_m = float(np.linalg.norm(np.asarray(config.lever_arm_body_m, dtype=float)))
         # Device samples come back late after a gap (RESEND): a sample from before the newest one is
         # inserted in place, never taken for a reboot (the synchroniser clears them on a device reboot).
         self._imu: TelemetryBuffer[DeviceSample] = TelemetryBuffer(512, reboot_backstep_us=_NEVER_US)
@@ -290,7 +323,8 @@ class Geotagger:
         ap_method = self._ap.method() if mid_boot is not None else "none"
         ap_unc = self._ap.uncertainty_us(mid_boot) if mid_boot is not None else None
 
-        pos = self._position(mid_boot, flags)
+        placed = self._position(mid_boot, flags)
+        pos = placed if isinstance(placed, PositionEstimate) else None
         att = self._attitude(mid_boot, flags)
         imu = self._imu_at(p.mid_device_us)
         rng = self._range_at(p.mid_device_us, flags)
@@ -299,8 +333,9 @@ class Geotagger:
         enu: np.ndarray | None = None
         cam_q = None
         body_q = att[0] if att else None
+        bound_h_v = self._position_bound(pos, att[1] if att else None, unc_ns, ap_unc)
         if pos is not None:
-            enu_body = pos[0]
+            enu_body = pos.enu
             if body_q is not None:
                 lever_ned = q_rotate(body_q, np.asarray(self._cfg.lever_arm_body_m))
                 enu_body = enu_body + np.array([lever_ned[1], lever_ned[0], -lever_ned[2]])
@@ -314,7 +349,7 @@ class Geotagger:
                 _, _, body_yaw = q_to_euler_zyx(body_q)
                 carrier = q_from_euler_zyx(0.0, 0.0, float(body_yaw))
             cam_q = np.asarray(q_multiply(carrier, self._q_cam_body))
-        gps = pos[2] if pos else self._tm.gps.bracket(int(mid_boot) if mid_boot is not None else 0)[0]
+        gps = placed.gps if placed else self._tm.gps.bracket(int(mid_boot) if mid_boot is not None else 0)[0]
 
         scale = incidence = None
         if rng is not None and rng[0] is not None:
@@ -350,11 +385,14 @@ class Geotagger:
             mid_host_uncertainty_ns=unc_ns,
             time_source=utc[2] if utc else "none",
             flags=sorted(set(flags)),
-            position_source=(pos[1] if pos else PositionSource.NONE).value,
+            position_source=_source_of(pos).value,
             fix_type=gps.fix_type if gps is not None else 0,
-            pose_gap_before_ms=pos[3] if pos else math.inf,
-            pose_gap_after_ms=pos[4] if pos else math.inf,
-            position_error_bound_m=pos[5] if pos else None,
+            pose_gap_before_ms=placed.gap_before_ms if placed else math.inf,
+            pose_gap_after_ms=placed.gap_after_ms if placed else math.inf,
+            position_error_bound_m=math.hypot(*bound_h_v) if bound_h_v else None,
+            horizontal_error_bound_m=bound_h_v[0] if bound_h_v else None,
+            vertical_error_bound_m=bound_h_v[1] if bound_h_v else None,
+            attitude_error_bound_deg=att[1] if att else None,
             mid_utc_us=utc[0] if utc else None,
             mid_utc_uncertainty_us=utc[1] if utc else None,
             lat_deg=lat,
@@ -402,10 +440,8 @@ class Geotagger:
             emitted_host_ns=now_host_ns,
         )
 
-    def _position(
-        self, mid_boot: float | None, flags: list[str]
-    ) -> tuple[np.ndarray, PositionSource, GpsSample | None, float, float, float] | None:
-        """(ENU of the autopilot at mid, source, GPS sample, gap before [ms], gap after [ms], bound [m])."""
+    def _position(self, mid_boot: float | None, flags: list[str]) -> PositionEstimate | PoseGap | None:
+        """The position at mid by `icgt.geotag.position` (None: no fix; PoseGap: too far from any sample)."""
         if mid_boot is None:
             flags.append(FrameFlag.NO_FIX.value)
             return None
@@ -421,22 +457,21 @@ class Geotagger:
         if est is None:
             flags.append(FrameFlag.NO_FIX.value)
             return None
+        if isinstance(est, PoseGap):
+            flags.append(FrameFlag.NO_POSE.value)
+            return est
         if est.extrapolated:
             flags.append(FrameFlag.POSE_EXTRAPOLATED.value)
-        if est.bound_m > self._cfg.max_position_error_m:
+        if est.motion_m > self._cfg.max_position_error_m:
             flags.append(FrameFlag.STALE_POSE.value)
-        gps = est.gps
-        if est.rule == "local":
-            source = PositionSource.VIO
-        elif gps is not None and gps.fix_type == 6:
-            source = PositionSource.RTK_FIXED
-        elif gps is not None and gps.fix_type == 5:
-            source = PositionSource.RTK_FLOAT
-        else:
-            source = PositionSource.GPS_3D
-        return est.enu, source, gps, est.gap_before_ms, est.gap_after_ms, est.bound_m
+        return est
 
-    def _attitude(self, mid_boot: float | None, flags: list[str]) -> tuple[np.ndarray] | None:
+    def _attitude(self, mid_boot: float | None, flags: list[str]) -> tuple[np.ndarray, float] | None:
+        """(body -> NED quaternion at mid, its 95 % bound [deg]): slerp between the samples around mid.
+
+        Bound: the autopilot's own ``attitude_accuracy_deg``, the rate change the ends show |w1 - w0| T u (1-u) / 2
+        and an unseen rate change A T^2 u (1-u) / 4 (as `icgt.geotag.bounds.interpolation_bound`); a held
+        attitude (one side only) adds |w| dt + A dt^2 / 2."""
         if mid_boot is None:
             flags.append(FrameFlag.NO_ATTITUDE.value)
             return None
@@ -444,12 +479,38 @@ class Geotagger:
         if before is None and after is None:
             flags.append(FrameFlag.NO_ATTITUDE.value)
             return None
+        base = self._cfg.attitude_accuracy_deg
+        unseen = self._cfg.unseen_rate_rad_s2
         if before is None or after is None or after.boot_us == before.boot_us:
             only = before or after
             assert only is not None
-            return (np.asarray(only.q_wxyz, dtype=float),)
+            dt = abs(mid_boot - only.boot_us) / 1e6
+            rate = math.sqrt(only.rollspeed_rps**2 + only.pitchspeed_rps**2 + only.yawspeed_rps**2)
+            return np.asarray(only.q_wxyz, dtype=float), base + math.degrees(rate * dt + unseen * dt**2 / 2.0)
+        span = (after.boot_us - before.boot_us) / 1e6
         f = (mid_boot - before.boot_us) / (after.boot_us - before.boot_us)
-        return (np.asarray(q_slerp(before.q_wxyz, after.q_wxyz, f), dtype=float),)
+        d_rate = math.sqrt(
+            (after.rollspeed_rps - before.rollspeed_rps) ** 2
+            + (after.pitchspeed_rps - before.pitchspeed_rps) ** 2
+            + (after.yawspeed_rps - before.yawspeed_rps) ** 2
+        )
+        shape = f * (1.0 - f)
+        motion = d_rate * span * shape / 2.0 + unseen * span**2 * shape / 4.0
+        return np.asarray(q_slerp(before.q_wxyz, after.q_wxyz, f), dtype=float), base + math.degrees(motion)
+
+    def _position_bound(
+        self, pos: PositionEstimate | None, attitude_bound_deg: float | None, dev_unc_ns: int, ap_unc_us: float | None
+    ) -> tuple[float, float] | None:
+        """The camera position's 95 % bound [m] (horizontal, vertical): the estimate's source and motion parts,
+        the clock uncertainty at mid times the speed, and the lever arm times the attitude bound (a camera
+        without attitude has its lever arm unapplied: the whole arm)."""
+        if pos is None:
+            return None
+        dt_s = (dev_unc_ns / 1e9) + ((ap_unc_us if ap_unc_us is not None else 0.0) / 1e6)
+        v = pos.velocity_enu_m_s
+        timing_h, timing_v = math.hypot(float(v[0]), float(v[1])) * dt_s, abs(float(v[2])) * dt_s
+        lever = self._lever_m * (math.radians(attitude_bound_deg) if attitude_bound_deg is not None else 1.0)
+        return pos.horizontal_m + timing_h + lever, pos.vertical_m + timing_v + lever
 
     def _imu_at(self, mid_device_us: int) -> DeviceSample | None:
         before, after = self._imu.bracket(mid_device_us)

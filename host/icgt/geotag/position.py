@@ -1,43 +1,60 @@
 """The vehicle's position at one instant of the autopilot's clock, from the telemetry real autopilots send.
 
-Rules, in order (each frame says which one placed it, and a bound on the position error):
+Each estimate carries a 95 % bound, horizontal and vertical, split into the source's own accuracy and the
+motion the samples do not show (`icgt.geotag.bounds`, docs/error-bounds.md). The candidates, of which the
+one with the smallest bound places the frame (each frame says which rule and source):
 
-1. **GPS between two samples.** When usable GLOBAL_POSITION_INT samples bracket the instant and are at
-   most ``max_gps_gap_s`` apart (real autopilots stream them at 2-4 Hz when nobody sets the rate, 50 Hz
-   when asked), the position is the cubic Hermite interpolation of the two positions with their own
-   velocities. Bound: ``|v_after - v_before| * T / 8`` (how far the path can bend away from a straight
-   line in T seconds with that change of velocity; the cubic removes most of it, so this is an upper
-   estimate) plus ``max_accel_m_s2 * T**2 / 32`` for what the end velocities do not show.
-2. **Local position in a gap, or when GPS is absent** (VIO, optical flow, an EKF that lost GPS): the
-   latest usable GPS sample before the instant is the anchor; the local position (LOCAL_POSITION_NED,
-   interpolated in time both at the anchor's and at the instant's stamp, never "the sample at or
-   before") moves it. Never across a local-origin reset (`LocalPositionSample.epoch`). Bound: the
-   local frame's drift allowance ``local_drift_m_per_s`` times the time since the anchor.
-3. **Dead reckoning.** Only an earlier GPS sample and no local position: its position moved by its own
-   velocity, flagged extrapolated. Bound: ``max_accel_m_s2 * dt**2 / 2``.
-4. Nothing usable: no position (the frame says no_fix).
+1. **GPS between two samples.** Usable GLOBAL_POSITION_INT samples bracket the instant and are at most
+   ``max_interpolation_gap_s`` apart (real autopilots stream them at 2-4 Hz when nobody sets the rate, and
+   radios drop seconds of them): the cubic Hermite interpolation of the two positions with their own
+   velocities. Its motion bound grows with the gap (`bounds.interpolation_bound`): what the accelerations at
+   both ends say the cubic misses, plus an unseen acceleration change inside the gap.
+2. **Local position** (GPS denied, or a gap in GLOBAL_POSITION_INT only): the latest usable GPS sample
+   before the instant is the anchor; LOCAL_POSITION_NED, interpolated both at the anchor's and at the
+   instant's stamp, moves it. Never across a local-origin reset (`LocalPositionSample.epoch`), never from a
+   local position that is itself extrapolated at the anchor. Bound: the anchor's source accuracy, the local
+   frame's drift ``local_drift_m_per_s`` times the time since the anchor, and the local samples' own
+   interpolation (or extrapolation) bound.
+3. **Dead reckoning.** Only an earlier GPS sample: its position moved by its own velocity, flagged
+   extrapolated. Bound: (|a| + A) dt^2 / 2 with the acceleration seen at the sample.
+4. Nothing usable: no position (`None`, the frame says no_fix). An extrapolation whose motion bound would
+   exceed ``max_extrapolation_m`` is not made (`PoseGap`, the frame says no_pose with the gap): beyond that
+   horizon a guess is not a position. Once the later sample is there (a later poll, a recompute with
+   look-ahead), rule 1 places the frame across the gap.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from icgt.geodesy import LocalFrame
+from icgt.geotag.bounds import (
+    MotionAllowance,
+    SourceAccuracy,
+    extrapolation_bound,
+    interpolation_bound,
+    quintic_correction,
+    source_accuracy,
+)
 from icgt.mavlink.telemetry import FusedPositionSample, GpsSample, LocalPositionSample, TelemetryStore
 
-__all__ = ["PositionEstimate", "PositionRules", "estimate_position"]
+__all__ = ["PoseGap", "PositionEstimate", "PositionRules", "estimate_position"]
 
 _ANCHOR_HISTORY_US = 600_000_000  # a GPS-denied stretch may be placed from a fix up to 10 min old
+_ACCEL_WINDOW_US = 1_000_000  # an end acceleration from a neighbouring sample at most this far away
 
 
 @dataclass(frozen=True)
 class PositionRules:
-    max_gps_gap_s: float = 1.5
-    max_accel_m_s2: float = 3.0
+    max_gps_gap_s: float = 1.5  # the recorder holds a frame this long for the next GPS sample (geotagger)
+    max_accel_m_s2: float = 3.0  # stands in for the acceleration when no neighbouring sample shows it
     local_drift_m_per_s: float = 0.05
+    max_interpolation_gap_s: float = 10.0
+    max_extrapolation_m: float = 1.0
+    allowance: MotionAllowance = field(default_factory=MotionAllowance)
 
 
 @dataclass(frozen=True)
@@ -47,8 +64,32 @@ class PositionEstimate:
     gps: GpsSample | None  # the GPS_RAW_INT sample at or before the instant
     gap_before_ms: float
     gap_after_ms: float  # inf when nothing after the instant was used
-    bound_m: float
+    source: SourceAccuracy  # the source's own 95 % error
+    motion_h_m: float  # 95 % bound on what the samples do not show, horizontal [m]
+    motion_v_m: float
     extrapolated: bool
+    velocity_enu_m_s: np.ndarray  # at the instant (for the timing part of the bound)
+
+    @property
+    def motion_m(self) -> float:
+        return math.hypot(self.motion_h_m, self.motion_v_m)
+
+    @property
+    def horizontal_m(self) -> float:
+        return self.source.horizontal_m + self.motion_h_m
+
+    @property
+    def vertical_m(self) -> float:
+        return self.source.vertical_m + self.motion_v_m
+
+
+@dataclass(frozen=True)
+class PoseGap:
+    """No position: the nearest samples are too far for the dynamics to bound (no_pose)."""
+
+    gap_before_ms: float
+    gap_after_ms: float
+    gps: GpsSample | None
 
 
 def _usable(s: FusedPositionSample | None) -> bool:
@@ -63,6 +104,10 @@ def _local_enu(s: LocalPositionSample) -> np.ndarray:
     return np.array([s.y_m, s.x_m, -s.z_m])  # local NED -> ENU axes
 
 
+def _local_velocity_enu(s: LocalPositionSample) -> np.ndarray:
+    return np.array([s.vy_mps, s.vx_mps, -s.vz_mps])
+
+
 def _hermite(p0: np.ndarray, v0: np.ndarray, p1: np.ndarray, v1: np.ndarray, span_s: float, f: float) -> np.ndarray:
     f2, f3 = f * f, f * f * f
     return (
@@ -70,63 +115,214 @@ def _hermite(p0: np.ndarray, v0: np.ndarray, p1: np.ndarray, v1: np.ndarray, spa
     )
 
 
-def _local_at(tm: TelemetryStore, t_us: float) -> tuple[np.ndarray, int, float, bool] | None:
-    """Local ENU at t (interpolated), its epoch, the gap to the sample after [ms] and whether it was extrapolated."""
+def _hermite_velocity(
+    p0: np.ndarray, v0: np.ndarray, p1: np.ndarray, v1: np.ndarray, span_s: float, f: float
+) -> np.ndarray:
+    f2 = f * f
+    return (
+        (6 * f2 - 6 * f) * p0 / span_s
+        + (3 * f2 - 4 * f + 1) * v0
+        + (-6 * f2 + 6 * f) * p1 / span_s
+        + (3 * f2 - 2 * f) * v1
+    )
+
+
+def _accel(v_a: np.ndarray, t_a_us: int, v_b: np.ndarray, t_b_us: int) -> np.ndarray | None:
+    dt_us = t_b_us - t_a_us
+    if dt_us <= 0 or dt_us > _ACCEL_WINDOW_US:
+        return None
+    out: np.ndarray = (v_b - v_a) / (dt_us / 1e6)
+    return out
+
+
+def _fused_accel_at(tm: TelemetryStore, s: FusedPositionSample, *, outside: int) -> np.ndarray | None:
+    """The acceleration at sample s from its neighbour on the ``outside`` (-1 earlier, +1 later) side."""
+    if outside < 0:
+        n, _ = tm.fused.bracket(s.boot_us - 1)
+        if not _usable(n):
+            return None
+        assert n is not None
+        return _accel(_velocity_enu(n), n.boot_us, _velocity_enu(s), s.boot_us)
+    _, n = tm.fused.bracket(s.boot_us + 1)
+    if not _usable(n):
+        return None
+    assert n is not None
+    return _accel(_velocity_enu(s), s.boot_us, _velocity_enu(n), n.boot_us)
+
+
+def _motion_interpolated(
+    p0: np.ndarray,
+    v0: np.ndarray,
+    a0: np.ndarray | None,
+    p1: np.ndarray,
+    v1: np.ndarray,
+    a1: np.ndarray | None,
+    span_s: float,
+    f: float,
+    rules: PositionRules,
+) -> tuple[float, float]:
+    correction = None
+    if a0 is not None or a1 is not None:
+        # One end's acceleration unknown: the gap's mean acceleration stands in for it (a linear change)
+        mean = (v1 - v0) / span_s
+        a0e = a0 if a0 is not None else 2.0 * mean - (a1 if a1 is not None else mean)
+        a1e = a1 if a1 is not None else 2.0 * mean - a0e
+        correction = quintic_correction(p0, v0, a0e, p1, v1, a1e, span_s, f)
+    return interpolation_bound(span_s, f, correction, v1 - v0, rules.allowance)
+
+
+@dataclass(frozen=True)
+class _Local:
+    enu: np.ndarray
+    velocity: np.ndarray
+    epoch: int
+    gap_before_ms: float
+    gap_after_ms: float
+    motion_h_m: float
+    motion_v_m: float
+    extrapolated: bool
+
+
+def _local_at(tm: TelemetryStore, t_us: float, rules: PositionRules) -> _Local | None:
+    """Local ENU at t (interpolated, or extrapolated from the nearest sample), with its own motion bound."""
     lb, la = tm.local_position.bracket(int(t_us))
     if lb is None and la is None:
         return None
-    if lb is not None and la is not None and la.epoch == lb.epoch and la.boot_us > lb.boot_us:
+    if lb is not None and la is not None and la.boot_us == lb.boot_us:
+        return _Local(_local_enu(lb), _local_velocity_enu(lb), lb.epoch, 0.0, 0.0, 0.0, 0.0, False)
+    if lb is not None and la is not None and la.epoch == lb.epoch:
+        span_s = (la.boot_us - lb.boot_us) / 1e6
         f = (t_us - lb.boot_us) / (la.boot_us - lb.boot_us)
-        a = _local_enu(lb)
-        return a + (_local_enu(la) - a) * f, lb.epoch, (la.boot_us - t_us) / 1000.0, False
+        a, b = _local_enu(lb), _local_enu(la)
+        va, vb = _local_velocity_enu(lb), _local_velocity_enu(la)
+        # LOCAL_POSITION_NED is interpolated linearly (the log's replay depends on it); its bound is the
+        # chord's: the Hermite's motion bound plus how far the chord is from the Hermite.
+        h, v = interpolation_bound(span_s, f, None, vb - va, rules.allowance)
+        chord = a + (b - a) * f
+        cubic = _hermite(a, va, b, vb, span_s, f)
+        d = cubic - chord
+        return _Local(
+            chord,
+            va + (vb - va) * f,
+            lb.epoch,
+            (t_us - lb.boot_us) / 1000.0,
+            (la.boot_us - t_us) / 1000.0,
+            h + math.hypot(float(d[0]), float(d[1])),
+            v + abs(float(d[2])),
+            False,
+        )
     s = lb if lb is not None else la
     assert s is not None
-    if lb is not None and la is not None and la.boot_us == lb.boot_us:
-        return _local_enu(s), s.epoch, 0.0, False
-    v = np.array([s.vy_mps, s.vx_mps, -s.vz_mps])
-    return _local_enu(s) + v * ((t_us - s.boot_us) / 1e6), s.epoch, math.inf, True
+    dt_s = (t_us - s.boot_us) / 1e6
+    h, v = extrapolation_bound(dt_s, None, rules.allowance, rules.max_accel_m_s2)
+    return _Local(
+        _local_enu(s) + _local_velocity_enu(s) * dt_s,
+        _local_velocity_enu(s),
+        s.epoch,
+        max(0.0, dt_s * 1000.0),
+        math.inf,
+        h,
+        v,
+        True,
+    )
+
+
+def _source(gps: GpsSample | None) -> SourceAccuracy:
+    if gps is None:
+        return source_accuracy(3, None, None)
+    return source_accuracy(gps.fix_type, gps.h_acc_m, gps.v_acc_m)
 
 
 def estimate_position(
     tm: TelemetryStore, frame: LocalFrame, t_us: float, rules: PositionRules
-) -> PositionEstimate | None:
-    """The autopilot's position at boot time ``t_us`` by the rules of the module docstring (None: no fix)."""
+) -> PositionEstimate | PoseGap | None:
+    """The autopilot's position at boot time ``t_us`` by the rules of the module docstring.
+
+    None: no usable position at all (no fix); `PoseGap`: the samples are too far apart to bound a position."""
     t = int(t_us)
     before, after = tm.fused.bracket(t)
     gps, _ = tm.gps.bracket(t)
+    src = _source(gps)
 
     def enu(s: FusedPositionSample) -> np.ndarray:
         assert s.lat_deg is not None and s.lon_deg is not None and s.alt_msl_m is not None
         return np.asarray(frame.geodetic_to_enu(s.lat_deg, s.lon_deg, s.alt_msl_m), dtype=float)
 
-    max_gap_us = rules.max_gps_gap_s * 1e6
+    candidates: list[PositionEstimate] = []
     if _usable(before) and _usable(after):
         assert before is not None and after is not None
         span_us = after.boot_us - before.boot_us
-        if span_us <= max_gap_us:
-            gap_b, gap_a = (t_us - before.boot_us) / 1000.0, (after.boot_us - t_us) / 1000.0
-            if span_us <= 0:
-                return PositionEstimate(enu(before), "gps", gps, 0.0, 0.0, 0.0, False)
+        if span_us <= 0:
+            return PositionEstimate(enu(before), "gps", gps, 0.0, 0.0, src, 0.0, 0.0, False, _velocity_enu(before))
+        if span_us <= rules.max_interpolation_gap_s * 1e6:
             span_s = span_us / 1e6
+            f = (t_us - before.boot_us) / span_us
+            p0, p1 = enu(before), enu(after)
             v0, v1 = _velocity_enu(before), _velocity_enu(after)
-            p = _hermite(enu(before), v0, enu(after), v1, span_s, (t_us - before.boot_us) / span_us)
-            bound = float(np.linalg.norm(v1 - v0)) * span_s / 8.0 + rules.max_accel_m_s2 * span_s**2 / 32.0
-            return PositionEstimate(p, "gps", gps, gap_b, gap_a, bound, False)
+            a0 = _fused_accel_at(tm, before, outside=-1)
+            a1 = _fused_accel_at(tm, after, outside=+1)
+            h, v = _motion_interpolated(p0, v0, a0, p1, v1, a1, span_s, f, rules)
+            candidates.append(
+                PositionEstimate(
+                    _hermite(p0, v0, p1, v1, span_s, f),
+                    "gps",
+                    gps,
+                    (t_us - before.boot_us) / 1000.0,
+                    (after.boot_us - t_us) / 1000.0,
+                    src,
+                    h,
+                    v,
+                    False,
+                    _hermite_velocity(p0, v0, p1, v1, span_s, f),
+                )
+            )
+            if span_us <= rules.max_gps_gap_s * 1e6:
+                return candidates[0]  # a GPS stream at its rate: nothing else is closer to the truth
     anchor = before if _usable(before) else None
     if anchor is None:
         history = [s for s in tm.fused.between(t - _ANCHOR_HISTORY_US, t) if _usable(s)]
         anchor = history[-1] if history else None
     if anchor is None:
-        return None
+        return candidates[0] if candidates else None
     gap_b = (t_us - anchor.boot_us) / 1000.0
-    here = _local_at(tm, t_us)
-    there = _local_at(tm, anchor.boot_us)
-    if here is not None and there is not None and here[1] == there[1] and not there[3]:
-        p = enu(anchor) + (here[0] - there[0])
-        bound = rules.local_drift_m_per_s * gap_b / 1000.0
-        lb, _ = tm.local_position.bracket(t)
-        local_gap_b = (t_us - lb.boot_us) / 1000.0 if lb is not None else gap_b
-        return PositionEstimate(p, "local", gps, local_gap_b, here[2], bound, here[3])
+    anchor_src = _source(tm.gps.bracket(anchor.boot_us)[0])
+    here = _local_at(tm, t_us, rules)
+    there = _local_at(tm, anchor.boot_us, rules)
+    if here is not None and there is not None and here.epoch == there.epoch and not there.extrapolated:
+        drift = rules.local_drift_m_per_s * gap_b / 1000.0
+        if not here.extrapolated or math.hypot(here.motion_h_m, here.motion_v_m) <= rules.max_extrapolation_m:
+            candidates.append(
+                PositionEstimate(
+                    enu(anchor) + (here.enu - there.enu),
+                    "local",
+                    gps,
+                    here.gap_before_ms,
+                    here.gap_after_ms,
+                    anchor_src,
+                    drift + here.motion_h_m + there.motion_h_m,
+                    drift + here.motion_v_m + there.motion_v_m,
+                    here.extrapolated,
+                    here.velocity,
+                )
+            )
     dt_s = gap_b / 1000.0
-    p = enu(anchor) + _velocity_enu(anchor) * dt_s
-    return PositionEstimate(p, "dead_reckoning", gps, gap_b, math.inf, rules.max_accel_m_s2 * dt_s**2 / 2.0, True)
+    h, v = extrapolation_bound(dt_s, _fused_accel_at(tm, anchor, outside=-1), rules.allowance, rules.max_accel_m_s2)
+    if math.hypot(h, v) <= rules.max_extrapolation_m:
+        candidates.append(
+            PositionEstimate(
+                enu(anchor) + _velocity_enu(anchor) * dt_s,
+                "dead_reckoning",
+                gps,
+                gap_b,
+                math.inf,
+                anchor_src,
+                h,
+                v,
+                True,
+                _velocity_enu(anchor),
+            )
+        )
+    if not candidates:
+        gap_a = (after.boot_us - t_us) / 1000.0 if after is not None else math.inf
+        return PoseGap(gap_b, gap_a, gps)
+    return min(candidates, key=lambda c: c.horizontal_m + c.vertical_m)

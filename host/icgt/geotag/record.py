@@ -21,7 +21,9 @@ class PositionSource(enum.StrEnum):
     RTK_FIXED = "rtk_fixed"
     RTK_FLOAT = "rtk_float"
     GPS_3D = "gps_3d"  # the autopilot's fused estimate while GPS has a 3D fix
-    VIO = "vio"  # the autopilot's local position moved from the last GPS fix (GPS denied, or a gap)
+    LOCAL_POSITION = "local_position"  # LOCAL_POSITION_NED moved from the last GPS fix (GPS denied, or a gap)
+    DEAD_RECKONED = "dead_reckoned"  # the last GPS sample moved by its own velocity (no later sample yet)
+    VIO = "vio"  # a visual-odometry source; never written by this version (logs before 0.2 wrote it for local)
     NONE = "none"
 
 
@@ -29,7 +31,8 @@ class FrameFlag(enum.StrEnum):
     """Quality flags; a frame can carry several."""
 
     NO_FIX = "no_fix"  # no usable 3D position at exposure
-    STALE_POSE = "stale_pose"  # a bracketing pose sample is farther than the stale limit
+    NO_POSE = "no_pose"  # the samples around it are too far apart to bound a position: none given (see the gaps)
+    STALE_POSE = "stale_pose"  # what the samples do not show (gap, extrapolation) exceeds max_position_error_m
     POSE_EXTRAPOLATED = "pose_extrapolated"  # the later sample never came: held from the earlier one
     NO_ATTITUDE = "no_attitude"
     CLOCK_UNSYNCED = "clock_unsynced"  # device->host mapping unknown or its bound above the limit (1 ms)
@@ -111,8 +114,15 @@ class FrameRecord:
     incidence_deg: Annotated[float | None, Doc("angle between optical axis and surface normal", unit="deg")] = None
     blur_px: Annotated[float | None, Doc("predicted motion blur (rotation and translation)", unit="px")] = None
     position_error_bound_m: Annotated[
-        float | None, Doc("bound on the position error from interpolation / local-frame drift", unit="m")
+        float | None,
+        Doc("95 % bound on the camera position error, 3D: hypot of the horizontal and vertical bounds", unit="m"),
     ] = None
+    horizontal_error_bound_m: Annotated[
+        float | None,
+        Doc("95 % bound on the horizontal error: source accuracy, gap, clock, lever arm", unit="m"),
+    ] = None
+    vertical_error_bound_m: Annotated[float | None, Doc("95 % bound on the vertical error", unit="m")] = None
+    attitude_error_bound_deg: Annotated[float | None, Doc("95 % bound on the attitude error", unit="deg")] = None
     # --- provenance
     autopilot_clock: Annotated[
         str, Doc("how mid-exposure was put on the autopilot's clock: timesync, arrival (one-way) or none")

@@ -72,8 +72,8 @@ class MotionAllowance:
     ``unseen_accel_*``: an acceleration change that starts and ends inside a gap (a gust, a bank started and
     stopped between two samples) [m/s^2]. ``unseen_rate_rad_s2``: the same for the body rate [rad/s^2]."""
 
-    unseen_accel_h_m_s2: float = 1.0
-    unseen_accel_v_m_s2: float = 0.5
+    unseen_accel_h_m_s2: float = 2.0
+    unseen_accel_v_m_s2: float = 1.0
     unseen_rate_rad_s2: float = 0.5
 
 

@@ -105,8 +105,8 @@ class GeotagConfig:
     # The error model (icgt.geotag.bounds, docs/error-bounds.md): every bound is a 95 % bound.
     max_interpolation_gap_s: Annotated[float, Meta(gt=0.0, le=600.0)] = 10.0  # farther apart: not interpolated
     max_extrapolation_m: Annotated[float, Meta(ge=0.0, le=1000.0)] = 1.0  # a larger guess: no position (no_pose)
-    unseen_accel_h_m_s2: Annotated[float, Meta(ge=0.0, le=100.0)] = 1.0  # acceleration change hidden in a gap
-    unseen_accel_v_m_s2: Annotated[float, Meta(ge=0.0, le=100.0)] = 0.5
+    unseen_accel_h_m_s2: Annotated[float, Meta(ge=0.0, le=100.0)] = 2.0  # acceleration change hidden in a gap
+    unseen_accel_v_m_s2: Annotated[float, Meta(ge=0.0, le=100.0)] = 1.0
     unseen_rate_rad_s2: Annotated[float, Meta(ge=0.0, le=100.0)] = 0.5  # body-rate change hidden in a gap
     attitude_accuracy_deg: Annotated[float, Meta(ge=0.0, le=90.0)] = 1.0  # the autopilot's attitude, 95 %
     max_wait_ms: Annotated[float, Meta(ge=0.0, le=10_000.0)] = 500.0

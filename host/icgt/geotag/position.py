@@ -305,6 +305,8 @@ def estimate_position(
                     here.velocity,
                 )
             )
+    if any(c.rule == "gps" for c in candidates):
+        return min(candidates, key=lambda c: c.horizontal_m + c.vertical_m)  # interpolation knows more than a guess
     dt_s = gap_b / 1000.0
     h, v = extrapolation_bound(dt_s, _fused_accel_at(tm, anchor, outside=-1), rules.allowance, rules.max_accel_m_s2)
     if math.hypot(h, v) <= rules.max_extrapolation_m:

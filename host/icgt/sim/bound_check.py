@@ -235,7 +235,8 @@ def score_flight(
         if kind == 0:
             store.ingest(MavlinkMessage(_wire(mav, item), host_ns(t)))
         else:
-            expose(t - 0.01, int(item))  # type: ignore[arg-type]
+            assert isinstance(item, int)
+            expose(t - 0.01, item)
         gt.poll(host_ns(t - lag_s))
     gt.poll(host_ns(flight.duration_s + 30.0), flush=True)
     return [_score(flight, gaps, plan, f) for f in frames]

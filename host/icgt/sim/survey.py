@@ -93,7 +93,7 @@ class SurveyFlight:
             self.segments.append((leg.kind, t0, t0 + length))
             t0 += length
         self.duration_s = t0
-        n = int(math.ceil(t0 / step_s)) + 1
+        n = math.ceil(t0 / step_s) + 1
         t = np.linspace(0.0, t0, n)
         accel_long = np.zeros(n)
         climb = np.zeros(n)

@@ -10,8 +10,8 @@ cannot (`PoseMiss`). It reads the frame's time on the clock it declares (`time_b
   keeps its inputs on] and its bound ``mid_host_uncertainty_ns``.
 
 The sources: the autopilot's telemetry, which the recorder's geotagger has already applied
-(`icgt.geotag`, ``position_source`` gps_3d/rtk_*/local_position/dead_reckoned; `icgt.trajectories.recorded` hands it back
-through this interface), and the external trajectories of this package: a TUM trajectory from
+(`icgt.geotag`, ``position_source`` gps_3d/rtk_*/local_position/dead_reckoned; `icgt.trajectories.recorded` hands
+it back through this interface), and the external trajectories of this package: a TUM trajectory from
 SLAM/VIO (`icgt.trajectories.tum`) and an RTKLIB ``.pos`` PPK solution (`icgt.trajectories.rtklib_pos`),
 both built on `SampledTrajectory`.
 

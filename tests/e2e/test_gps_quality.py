@@ -1,4 +1,4 @@
-"""Position source and flags through changing GPS quality: no fix, a fix, GPS denied (VIO), a fix again."""
+"""Position source and flags through changing GPS quality: no fix, a fix, GPS denied (local position), a fix again."""
 
 from __future__ import annotations
 
@@ -41,7 +41,7 @@ def test_gps_denied_frames_are_placed_by_local_position(frames_with_tau: list[An
     denied = [f for tau, f in frames_with_tau if 9.6 < tau < 13.6]
     good = [f for tau, f in frames_with_tau if 6.0 < tau < 8.5 or tau > 14.8]
     assert len(denied) >= 6 and len(good) >= 5
-    assert {f["position_source"] for f in denied} == {"vio"}
+    assert {f["position_source"] for f in denied} == {"local_position"}
     assert {f["position_source"] for f in good} == {"gps_3d"}
     assert all(f.get("lat_deg") is not None for f in denied)
 

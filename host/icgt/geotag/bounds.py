@@ -114,6 +114,7 @@ def interpolation_bound(
     correction_enu_m: np.ndarray | None,
     dv_enu_m_s: np.ndarray,
     allowance: MotionAllowance,
+    unexplained_accel_m_s2: np.ndarray | None = None,
 ) -> tuple[float, float]:
     """95 % bound [m] (horizontal, vertical) on the cubic Hermite's error at fraction f of a span.
 
@@ -121,7 +122,11 @@ def interpolation_bound(
     at most A stays within A T^2 u (1 - u) / 4 of it (the bang-bang worst case is A T^2 / 16 at the centre,
     A t^2 / 2 near an end; u (1 - u) / 4 covers both). What the samples show is added as it is: the quintic
     correction when the end accelerations are known, else the old bend allowance |v1 - v0| T / 8 times the
-    shape 4 u (1 - u)."""
+    shape 4 u (1 - u).
+
+    A is the allowance plus ``unexplained_accel_m_s2``: the part of the gap's mean acceleration (v1 - v0) / T
+    that the end accelerations do not explain, twice over (a braking or a bank that began and ended inside the
+    gap: its profile is unknown; a smooth one peaks near twice its mean)."""
     shape = f * (1.0 - f)
     if correction_enu_m is not None:
         seen_h, seen_v = _h_v(correction_enu_m)
@@ -129,9 +134,11 @@ def interpolation_bound(
         dv_h, dv_v = _h_v(dv_enu_m_s)
         seen_h, seen_v = dv_h * span_s * shape / 2.0, dv_v * span_s * shape / 2.0
     unseen = span_s**2 * shape / 4.0
+    # A smooth manoeuvre of mean acceleration m peaks near 2 m (a smootherstep braking at 1.875 m): twice it
+    extra_h, extra_v = _h_v(2.0 * unexplained_accel_m_s2) if unexplained_accel_m_s2 is not None else (0.0, 0.0)
     return (
-        seen_h + allowance.unseen_accel_h_m_s2 * unseen,
-        seen_v + allowance.unseen_accel_v_m_s2 * unseen,
+        seen_h + (allowance.unseen_accel_h_m_s2 + extra_h) * unseen,
+        seen_v + (allowance.unseen_accel_v_m_s2 + extra_v) * unseen,
     )
 
 

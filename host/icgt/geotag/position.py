@@ -162,13 +162,17 @@ def _motion_interpolated(
     rules: PositionRules,
 ) -> tuple[float, float]:
     correction = None
+    mean = (v1 - v0) / span_s
+    unexplained = mean
     if a0 is not None or a1 is not None:
         # One end's acceleration unknown: the gap's mean acceleration stands in for it (a linear change)
-        mean = (v1 - v0) / span_s
         a0e = a0 if a0 is not None else 2.0 * mean - (a1 if a1 is not None else mean)
         a1e = a1 if a1 is not None else 2.0 * mean - a0e
         correction = quintic_correction(p0, v0, a0e, p1, v1, a1e, span_s, f)
-    return interpolation_bound(span_s, f, correction, v1 - v0, rules.allowance)
+        # what the known ends do not explain (one end known: as if the other were like it)
+        known = [a for a in (a0, a1) if a is not None]
+        unexplained = mean - sum(known) / len(known)
+    return interpolation_bound(span_s, f, correction, v1 - v0, rules.allowance, unexplained)
 
 
 @dataclass(frozen=True)
@@ -197,7 +201,7 @@ def _local_at(tm: TelemetryStore, t_us: float, rules: PositionRules) -> _Local |
         va, vb = _local_velocity_enu(lb), _local_velocity_enu(la)
         # LOCAL_POSITION_NED is interpolated linearly (the log's replay depends on it); its bound is the
         # chord's: the Hermite's motion bound plus how far the chord is from the Hermite.
-        h, v = interpolation_bound(span_s, f, None, vb - va, rules.allowance)
+        h, v = interpolation_bound(span_s, f, None, vb - va, rules.allowance, (vb - va) / span_s)
         chord = a + (b - a) * f
         cubic = _hermite(a, va, b, vb, span_s, f)
         d = cubic - chord

@@ -31,7 +31,6 @@ class FrameFlag(enum.StrEnum):
     """Quality flags; a frame can carry several."""
 
     NO_FIX = "no_fix"  # no usable 3D position at exposure
-    NO_POSE = "no_pose"  # the samples around it are too far apart to bound a position: none given (see the gaps)
     STALE_POSE = "stale_pose"  # what the samples do not show (gap, extrapolation) exceeds max_position_error_m
     POSE_EXTRAPOLATED = "pose_extrapolated"  # the later sample never came: held from the earlier one
     NO_ATTITUDE = "no_attitude"
@@ -45,6 +44,7 @@ class FrameFlag(enum.StrEnum):
     FEEDBACK_MISSING = "feedback_missing"  # the camera did not confirm this trigger: it may not exist
     UNSOLICITED = "unsolicited"  # an exposure nobody triggered (manual shot)
     IMU_UNCALIBRATED = "imu_uncalibrated"
+    NO_POSE = "no_pose"  # the samples around it are too far apart to bound a position: none given (see the gaps)
 
 
 @dataclass(frozen=True, slots=True)

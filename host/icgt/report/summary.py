@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from icgt.errors import IcgtError
-from icgt.geotag.record import FrameRecord
+from icgt.geotag.record import FrameFlag, FrameRecord
 from icgt.recording import layout
 
 _TRACK = layout.mavlink_topic("GLOBAL_POSITION_INT")
@@ -272,6 +272,47 @@ def coverage(data: FlightData) -> dict[str, float] | None:
     }
 
 
+POSE_GAP_REPORTED_S = 1.0
+"""Position samples farther apart than this around a frame make a telemetry gap worth reporting [s]."""
+
+
+def pose_gaps(frames: list[FrameRecord]) -> list[tuple[float, float, int]]:
+    """The position telemetry's gaps the frames fell in: (start, end) on the host clock [s], frames without a
+    position in it (no_pose). From each frame's gaps to the samples before and after its mid-exposure."""
+    spans: list[tuple[float, float, int]] = []
+    for r in frames:
+        before, after = r.pose_gap_before_ms, r.pose_gap_after_ms
+        withheld = FrameFlag.NO_POSE.value in r.flags
+        if not (
+            withheld or (math.isfinite(before) and math.isfinite(after) and before + after > POSE_GAP_REPORTED_S * 1e3)
+        ):
+            continue
+        mid_s = r.mid_host_ns / 1e9
+        end = mid_s + after / 1e3 if math.isfinite(after) else mid_s
+        start = mid_s - before / 1e3 if math.isfinite(before) else mid_s
+        spans.append((start, end, int(withheld)))
+    merged: list[tuple[float, float, int]] = []
+    for start, end, n in sorted(spans):
+        if merged and start <= merged[-1][1] + 1e-3:
+            a, b, k = merged[-1]
+            merged[-1] = (a, max(b, end), k + n)
+        else:
+            merged.append((start, end, n))
+    return merged
+
+
+def _pose_gaps_text(frames: list[FrameRecord]) -> str:
+    gaps = pose_gaps(frames)
+    if not gaps:
+        return "none"
+    longest = max(b - a for a, b, _ in gaps)
+    withheld = sum(n for _, _, n in gaps)
+    return (
+        f"{len(gaps)} longer than {POSE_GAP_REPORTED_S:g} s (longest {longest:.2f} s); "
+        f"{withheld} frames without a position in them (no_pose)"
+    )
+
+
 def summarize(data: FlightData) -> list[tuple[str, str]]:
     """The summary as (label, value) rows, each value with its unit."""
     frames = data.frames
@@ -292,12 +333,15 @@ def summarize(data: FlightData) -> list[tuple[str, str]]:
     rows.append(("position sources", _counts(Counter(r.position_source for r in frames))))
     rows.append(("UTC sources", _counts(Counter(r.time_source for r in frames))))
     rows.append(("flags", _counts(flags) if flags else "none"))
+    rows.append(("position telemetry gaps", _pose_gaps_text(frames)))
     for label, values, unit in (
         ("horizontal accuracy", [r.h_acc_m for r in frames if r.h_acc_m is not None], "m"),
         ("vertical accuracy", [r.v_acc_m for r in frames if r.v_acc_m is not None], "m"),
         ("device->host clock bound", [r.mid_host_uncertainty_ns / 1000.0 for r in frames], "us"),
         ("UTC bound", [r.mid_utc_uncertainty_us for r in frames if r.mid_utc_uncertainty_us is not None], "us"),
         ("pose gap before", [r.pose_gap_before_ms for r in frames], "ms"),
+        ("horizontal bound (95 %)", [r.horizontal_error_bound_m for r in frames if r.horizontal_error_bound_m], "m"),
+        ("vertical bound (95 %)", [r.vertical_error_bound_m for r in frames if r.vertical_error_bound_m], "m"),
         ("range", [r.range_m for r in frames if r.range_m is not None], "m"),
         ("GSD", [r.scale_mm_per_px for r in frames if r.scale_mm_per_px is not None], "mm/px"),
         ("predicted blur", [r.blur_px for r in frames if r.blur_px is not None], "px"),

@@ -461,7 +461,14 @@ class SimAutopilot:
         msl = float(h) - self.scenario.origin.geoid_separation_m
         return round(float(lat) * 1e7), round(float(lon) * 1e7), round(msl * 1000.0), round(float(h) * 1000.0)
 
+    def _in_position_gap(self, stamp_us: int) -> bool:
+        tau = float(self.clocks.autopilot_us_to_tau(stamp_us))
+        return any(a <= tau < b for a, b in self.scenario.faults.position_gaps_s)
+
     def _build(self, name: str, stamp_us: int, rng: np.random.Generator) -> Any:
+        if name in ("global_position_int", "local_position_ned") and self._in_position_gap(stamp_us):
+            rng.normal(size=3)  # the noise sequence stays the same as without the gap
+            return None
         builders: dict[str, Callable[[int, np.random.Generator], Any]] = {
             "heartbeat": self._heartbeat,
             "gps_raw_int": self._gps_raw_int,

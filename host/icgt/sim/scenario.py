@@ -389,6 +389,10 @@ class Faults:
     """[start_s, duration_s] of USB unplugs."""
     autopilot_link_drops_s: tuple[Window, ...] = ()
     """[start_s, end_s] windows where the autopilot's companion link sends and hears nothing."""
+    position_gaps_s: tuple[Window, ...] = ()
+    """[start_s, end_s] windows where GLOBAL_POSITION_INT and LOCAL_POSITION_NED are not sent while attitude,
+    GPS_RAW_INT and the rest go on (real logs have such gaps of 3 s and more: an estimator or a radio that
+    drops the position streams)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -820,6 +824,7 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<memory>") -> Scenari
         manual_shots_between_triggers=f.boolean("manual_shots_between_triggers", False),
         device_unplugs_s=f.pairs("device_unplugs_s", second_after_first=False),
         autopilot_link_drops_s=f.pairs("autopilot_link_drops_s", second_after_first=True),
+        position_gaps_s=f.pairs("position_gaps_s", second_after_first=True),
     )
     f.finish()
     surface = None

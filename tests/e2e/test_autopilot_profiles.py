@@ -111,7 +111,9 @@ def _vio_between_gps(scored: Scored, *, in_bursts: bool) -> list[tuple[int, int,
     assert len(stamps) > 20
     wrong = []
     for fr in scored.frames:
-        if fr["position_source"] != "local_position" or _in_param_burst(scored, scored.tau.get(fr["frame_seq"], 0.0)) != in_bursts:
+        if fr["position_source"] != "local_position":
+            continue
+        if _in_param_burst(scored, scored.tau.get(fr["frame_seq"], 0.0)) != in_bursts:
             continue
         mid = scored.mapped.get(int(fr["mid_host_ns"]))
         assert mid is not None

@@ -76,6 +76,7 @@ class FrameScore:
     att_bound_deg: float
     h_acc_m: float  # the naive bound: the receiver's own accuracy
     v_acc_m: float
+    enu_m: tuple[float, float, float] | None  # the camera position the frame gives (None: withheld)
 
     @property
     def flagged(self) -> bool:
@@ -274,6 +275,7 @@ def _score(flight: SurveyFlight, gaps: list[Gap], plan: TelemetryPlan, f: FrameR
         att_bound_deg=f.attitude_error_bound_deg if f.attitude_error_bound_deg is not None else math.nan,
         h_acc_m=RADIAL_NAIVE * plan.h_acc_m,
         v_acc_m=plan.v_acc_m,
+        enu_m=(f.east_m, f.north_m, f.up_m) if placed else None,  # type: ignore[arg-type]
     )
 
 

@@ -20,12 +20,24 @@ from typing import Any
 
 from icgt.export import ExportError
 from icgt.geometry import FrameSolution, GeometryError, Projector, camera_angles_deg_many
+from icgt.geotag.bounds import AXIS_95, RADIAL_95
 from icgt.geotag.record import FrameFlag, FrameRecord
 
 log = logging.getLogger(__name__)
 
 RECORD_FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(FrameRecord))
 """Every FrameRecord field, in declaration order."""
+
+
+def position_sigma_m(rec: FrameRecord) -> tuple[float | None, float | None]:
+    """The frame's position accuracy as one standard deviation [m] (horizontal radial RMS, vertical), what
+    photogrammetry weights by: its 95 % bounds scaled back (docs/error-bounds.md); a frame from a log without
+    them gives the receiver's h_acc / v_acc."""
+    h, v = rec.horizontal_error_bound_m, rec.vertical_error_bound_m
+    if h is not None and v is not None and math.isfinite(h) and math.isfinite(v):
+        return h / RADIAL_95, v / AXIS_95
+    return rec.h_acc_m, rec.v_acc_m
+
 
 _POSE_WARNING_FLAGS = (
     FrameFlag.STALE_POSE,

@@ -33,7 +33,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from icgt.export.common import ExportItem, utc_iso
+from icgt.export.common import ExportItem, position_sigma_m, utc_iso
 from icgt.export.exiftool_session import NS_ICGT, XMP_LAYOUT
 from icgt.export.pose_tags import CONFLICTING, img_direction, odm_angles, xmp_pose_values
 
@@ -75,8 +75,9 @@ def gps_values(item: ExportItem) -> dict[str, Any]:
     }
     if rec.satellites is not None:
         tags["GPS:GPSSatellites"] = str(rec.satellites)
-    if rec.h_acc_m is not None and math.isfinite(rec.h_acc_m):
-        tags["GPS:GPSHPositioningError"] = round(rec.h_acc_m, 4)
+    h_sigma, _ = position_sigma_m(rec)
+    if h_sigma is not None and math.isfinite(h_sigma):
+        tags["GPS:GPSHPositioningError"] = round(h_sigma, 4)
     if item.angles is not None:
         tags["GPS:GPSImgDirectionRef"] = "T"
         tags["GPS:GPSImgDirection"] = img_direction(item.angles[0])
@@ -171,8 +172,7 @@ def intended_tags(item: ExportItem, before: Mapping[str, Any], *, sidecar: bool 
             tags.update(gps)
     if rec.range_valid and rec.range_m is not None and math.isfinite(rec.range_m) and not sidecar:
         tags["ExifIFD:SubjectDistance"] = round(rec.range_m, 3)
-    h_acc = rec.h_acc_m if item.position_ok else None
-    v_acc = rec.v_acc_m if item.position_ok else None
+    h_acc, v_acc = position_sigma_m(rec) if item.position_ok else (None, None)
     tags.update(xmp_pose_values(item_odm_angles(item), str(make) if make else None, h_acc, v_acc))
     tags.update({f"XMP-icgt:{k}": v for k, v in xmp_properties(item).items()})
     replaced = replaced_tags(before, tags)

@@ -24,7 +24,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from icgt.export import ExportError
-from icgt.export.common import ExportItem, ProblemLog
+from icgt.export.common import ExportItem, ProblemLog, position_sigma_m
 from icgt.export.exif_tags import item_odm_angles
 
 GEO_TXT = "geo.txt"
@@ -41,8 +41,9 @@ def geo_line(item: ExportItem) -> str | None:
     angles = item_odm_angles(item)
     yaw, pitch, roll = angles if angles is not None else (0.0, 0.0, 0.0)
     fields += [f"{yaw:.4f}", f"{pitch:.4f}", f"{roll:.4f}"]
-    if rec.h_acc_m is not None and rec.v_acc_m is not None:
-        fields += [f"{rec.h_acc_m:.3f}", f"{rec.v_acc_m:.3f}"]
+    h_sigma, v_sigma = position_sigma_m(rec)
+    if h_sigma is not None and v_sigma is not None:
+        fields += [f"{h_sigma:.3f}", f"{v_sigma:.3f}"]
     return " ".join(fields)
 
 

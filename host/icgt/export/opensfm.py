@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from icgt.export import ExportError
-from icgt.export.common import ExportItem
+from icgt.export.common import ExportItem, position_sigma_m
 
 EXIF_OVERRIDES = "exif_overrides.json"
 
@@ -32,8 +32,9 @@ def override(item: ExportItem) -> dict[str, Any] | None:
     if not item.name or not item.position_ok:
         return None
     gps: dict[str, Any] = {"latitude": rec.lat_deg, "longitude": rec.lon_deg, "altitude": rec.alt_msl_m}
-    if rec.h_acc_m is not None:
-        gps["dop"] = rec.h_acc_m
+    h_sigma, _ = position_sigma_m(rec)
+    if h_sigma is not None:
+        gps["dop"] = h_sigma
     entry: dict[str, Any] = {"gps": gps}
     if rec.mid_utc_us is not None:
         entry["capture_time"] = rec.mid_utc_us / 1e6

@@ -57,6 +57,7 @@ import numpy as np
 
 from icgt.errors import IcgtError
 from icgt.export import ExportError
+from icgt.export.common import position_sigma_m
 from icgt.export.ros2_msgs import MSG_TYPE, frame_record_fields, shipped_msg_text
 from icgt.geodesy import Q_NED_TO_ENU, LocalFrame, q_conjugate, q_multiply, q_rotate
 from icgt.geotag.record import FrameRecord
@@ -286,7 +287,8 @@ class _Converter:
         self.bag.add("/frames", ns, t[MSG_TYPE](header=self.bag.header(stamp, CAMERA), **fields))
         if _finite(rec.lat_deg, rec.lon_deg, rec.alt_msl_m):
             assert rec.lat_deg is not None and rec.lon_deg is not None and rec.alt_msl_m is not None
-            hv = (rec.h_acc_m, rec.v_acc_m) if _finite(rec.h_acc_m, rec.v_acc_m) else None
+            sigma = position_sigma_m(rec)
+            hv = (sigma[0], sigma[1]) if _finite(*sigma) else None
             fix = self._navsat(stamp, CAMERA, rec.lat_deg, rec.lon_deg, rec.alt_msl_m, rec.fix_type, hv)
             self.bag.add("/frames/fix", ns, fix)
         if rec.mid_utc_us is not None:

@@ -132,6 +132,14 @@ def position_problem(rec: FrameRecord) -> tuple[str, str] | None:
     lat, lon, alt = rec.lat_deg, rec.lon_deg, rec.alt_msl_m
     if lat is None or lon is None or alt is None:
         why = ", ".join(rec.flags) or "no flags"
+        if FrameFlag.NO_POSE.value in rec.flags:
+            return (
+                "no_pose",
+                f"no position given: the position telemetry around the exposure has a gap of "
+                f"{rec.pose_gap_before_ms / 1000.0:.2f} s before it and {rec.pose_gap_after_ms / 1000.0:.2f} s "
+                f"after it, too long to bound a position (docs/error-bounds.md); icgt recompute with look-ahead "
+                f"may place it ({why})",
+            )
         return (
             "no_fix",
             f"no position at exposure (position source {rec.position_source}, fix type {rec.fix_type}; {why})",

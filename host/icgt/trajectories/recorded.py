@@ -63,4 +63,7 @@ class RecordedTelemetry:
             frame.pose_gap_before_ms,
             frame.pose_gap_after_ms,
             extrapolated=FrameFlag.POSE_EXTRAPOLATED.value in frame.flags,
+            horizontal_bound_m=frame.horizontal_error_bound_m,
+            vertical_bound_m=frame.vertical_error_bound_m,
+            stale=FrameFlag.STALE_POSE.value in frame.flags,
         )

@@ -15,7 +15,8 @@ frame's mid-exposure, the way the geotagger places it live (`icgt.geotag.geotagg
 
 Set from the source: lat/lon/alt (MSL), east/north/up, ``position_source`` (the source's label:
 ``ppk_fixed``, ``ppk_float``, ... or ``slam``), ``position_error_bound_m``, the pose gaps; flags
-``no_fix``, ``stale_pose`` (bound above ``max_position_error_m``) and ``pose_extrapolated`` are
+``no_fix``, ``stale_pose`` (bound above ``max_position_error_m``, or the recorded frame's own verdict when the
+source is the recorded telemetry) and ``pose_extrapolated`` are
 decided anew, ``no_attitude`` is cleared when the source supplies attitude. Everything else is kept
 (times, LiDAR, the GPS receiver's own fields fix_type/h_acc/v_acc/satellites, which describe the
 autopilot's receiver). A frame the source cannot place is kept exactly as recorded, and listed with
@@ -93,16 +94,18 @@ def _place(frame: FrameRecord, fix: PoseFix, cfg: RegeotagConfig, local: LocalFr
     body_q = fix.q_body_ned if fix.q_body_ned is not None else _recorded_attitude(frame)
     flags = set(frame.flags) - _POSE_FLAGS
     bound = fix.error_bound_m
+    lever_part = 0.0
     enu = np.asarray(fix.enu_m, dtype=float)
     arm = float(np.linalg.norm(cfg.lever_arm))
     if body_q is not None:
         lever_ned = q_rotate(body_q, cfg.lever_arm)
         enu = enu + np.array([lever_ned[1], lever_ned[0], -lever_ned[2]])
     if body_q is None or (fix.q_body_ned is None and FrameFlag.POSE_EXTRAPOLATED.value in frame.flags):
-        bound += arm  # no attitude, or one held from before a telemetry gap: the camera is on that sphere
+        lever_part = arm  # no attitude, or one held from before a telemetry gap: the camera is on that sphere
     elif fix.q_body_ned is None:
-        bound += arm * math.radians(cfg.recorded_attitude_error_deg)  # the borrowed attitude's error
-    if bound > g.max_position_error_m:
+        lever_part = arm * math.radians(cfg.recorded_attitude_error_deg)  # the borrowed attitude's error
+    bound += lever_part
+    if fix.stale if fix.stale is not None else bound > g.max_position_error_m:
         flags.add(FrameFlag.STALE_POSE.value)
     if fix.extrapolated:
         flags.add(FrameFlag.POSE_EXTRAPOLATED.value)
@@ -116,6 +119,9 @@ def _place(frame: FrameRecord, fix: PoseFix, cfg: RegeotagConfig, local: LocalFr
         "up_m": float(enu[2]),
         "position_source": fix.label,
         "position_error_bound_m": bound,
+        "horizontal_error_bound_m": (fix.horizontal_bound_m if fix.horizontal_bound_m is not None else bound)
+        + lever_part,
+        "vertical_error_bound_m": (fix.vertical_bound_m if fix.vertical_bound_m is not None else bound) + lever_part,
         "pose_gap_before_ms": fix.gap_before_ms,
         "pose_gap_after_ms": fix.gap_after_ms,
     }

@@ -85,6 +85,11 @@ class PoseFix:
     """The later sample used minus the frame time [ms]."""
     extrapolated: bool = False
     """Held or extrapolated past the last sample (the trajectories here never are; recorded poses can be)."""
+    horizontal_bound_m: float | None = None
+    """95 % horizontal / vertical bounds [m] where the source has them apart (None: ``error_bound_m`` for both)."""
+    vertical_bound_m: float | None = None
+    stale: bool | None = None
+    """The source's own stale_pose verdict (the recorded telemetry's); None: decided from the bound."""
 
     def geodetic(self) -> tuple[float, float, float]:
         """(lat [deg], lon [deg], altitude above MSL [m]) of the reference point."""

@@ -42,6 +42,7 @@ from icgt.demo import fly
 from icgt.export.cli import add_export_arguments, cmd_export
 from icgt.geodesy import LocalFrame, q_multiply
 from icgt.geometry import CameraModel, Plane, Projector, origin_from_frames
+from icgt.geotag.bounds import AXIS_95, RADIAL_95
 from icgt.geotag.record import FrameRecord
 from icgt.ingest import read
 from icgt.sim.scenario import load_scenario
@@ -267,7 +268,10 @@ def test_geo_txt_follows_odm_rules(run: Run) -> None:
         q = tuple(float(row[k]) for k in ("cam_qw", "cam_qx", "cam_qy", "cam_qz"))
         # ODM's convention (odm_rules): the rotation ODM builds from the three angles is the camera's
         np.testing.assert_allclose(rotation(*angles), camera_axes_ned(q), atol=1e-5)
-        assert acc == pytest.approx([float(row["h_acc_m"]), float(row["v_acc_m"])], abs=1e-3)
+        # the frame's 95 % bounds as one standard deviation (docs/error-bounds.md), not the receiver's h_acc
+        sigma = [float(row["horizontal_error_bound_m"]) / RADIAL_95, float(row["vertical_error_bound_m"]) / AXIS_95]
+        assert acc == pytest.approx(sigma, abs=1e-3)
+        assert sigma[0] >= float(row["h_acc_m"])  # never more confident than the receiver
 
 
 def test_opensfm_overrides(run: Run) -> None:
@@ -278,7 +282,7 @@ def test_opensfm_overrides(run: Run) -> None:
         assert entry["gps"]["latitude"] == float(row["Latitude"])
         assert entry["gps"]["longitude"] == float(row["Longitude"])
         assert entry["gps"]["altitude"] == float(row["Altitude"])
-        assert entry["gps"]["dop"] == float(row["h_acc_m"])
+        assert entry["gps"]["dop"] == pytest.approx(float(row["horizontal_error_bound_m"]) / RADIAL_95, rel=1e-9)
         assert entry["capture_time"] == pytest.approx(int(row["mid_utc_us"]) / 1e6, abs=1e-6)
 
 

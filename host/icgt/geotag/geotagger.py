@@ -98,7 +98,7 @@ class GeotagConfig:
     range_max_m: Annotated[float, Meta(gt=0.0, le=1000.0)] = 40.0
     range_stale_ms: Annotated[float, Meta(gt=0.0, le=10_000.0)] = 50.0
     stale_pose_ms: Annotated[float, Meta(gt=0.0)] = 100.0  # kept for old config files; the bound below decides
-    max_position_error_m: Annotated[float, Meta(gt=0.0)] = 0.10  # a larger position bound flags stale_pose
+    max_position_error_m: Annotated[float, Meta(gt=0.0)] = 0.10  # a larger gap part of the bound: stale_pose
     max_gps_gap_s: Annotated[float, Meta(gt=0.0, le=60.0)] = 1.5  # a frame is held this long for the next fix
     max_accel_m_s2: Annotated[float, Meta(ge=0.0, le=100.0)] = 3.0  # acceleration when no sample shows it
     local_drift_m_per_s: Annotated[float, Meta(ge=0.0, le=10.0)] = 0.05  # local frame drift since the anchor
@@ -509,7 +509,9 @@ class Geotagger:
         dt_s = (dev_unc_ns / 1e9) + ((ap_unc_us if ap_unc_us is not None else 0.0) / 1e6)
         v = pos.velocity_enu_m_s
         timing_h, timing_v = math.hypot(float(v[0]), float(v[1])) * dt_s, abs(float(v[2])) * dt_s
-        lever = self._lever_m * (math.radians(attitude_bound_deg) if attitude_bound_deg is not None else 1.0)
+        # a chord of the arm's sphere: |arm| 2 sin(err / 2) <= |arm| err, and never more than its diameter
+        turn = min(math.radians(attitude_bound_deg), 2.0) if attitude_bound_deg is not None else 1.0
+        lever = self._lever_m * turn
         return pos.horizontal_m + timing_h + lever, pos.vertical_m + timing_v + lever
 
     def _imu_at(self, mid_device_us: int) -> DeviceSample | None:

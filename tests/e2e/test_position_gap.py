@@ -1,4 +1,4 @@
-"""Issue 32 end to end: position telemetry silent for 3.5 s while the drone brakes and sways.
+"""Issue 32 end to end: position telemetry silent for 3.5 s in a banked turn at 22 m/s (a VTOL survey).
 
 Flown on the simulator (real firmware core on a pseudo-terminal, pymavlink autopilot over UDP, `icgt record`).
 Every frame whose mid-exposure lies in the gap either has no position (no_pose, with its gap) or a position
@@ -25,7 +25,7 @@ from icgt.sim.evaluate import read_frames, read_truth
 from icgt.sim.scenario import load_scenario
 
 SCENARIO = Path(__file__).with_name("position_gap.toml")
-GAP = (14.0, 17.5)
+GAP = (7.5, 11.0)
 
 
 @pytest.fixture(scope="module")
@@ -89,13 +89,14 @@ def test_outside_the_gap_bounds_stay_sharp(flight: Flight, truth: Any) -> None:
     near = []
     for f in read_frames(flight.mcap):
         t = truth.get(int(f["start_device_us"]))
-        if t is None or f.get("lat_deg") is None or not 4.0 < float(t["mid_tau_s"]) < 13.0:
+        tau = float(t["mid_tau_s"]) if t is not None else -1.0
+        if t is None or f.get("lat_deg") is None or not (3.0 < tau < 7.0 or 12.0 < tau < 20.0):
             continue
         h, v = _errors(flight, f, t)
         assert h <= f["horizontal_error_bound_m"] and v <= f["vertical_error_bound_m"]
         near.append(f["horizontal_error_bound_m"])
     assert len(near) > 30
-    assert float(np.median(near)) < 0.10  # RTK fixed, 10 m/s, 4 Hz: centimetres, not metres
+    assert float(np.median(near)) < 0.10  # RTK fixed, 22 m/s, 4 Hz: centimetres, not metres
 
 
 def test_recompute_with_lookahead_places_every_gap_frame_inside_its_bounds(flight: Flight, truth: Any) -> None:

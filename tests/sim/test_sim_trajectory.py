@@ -164,3 +164,28 @@ def test_camera_sits_at_the_lever_arm() -> None:
     offset_ned = q_rotate(st.q_body_ned[0], [0.3, 0.1, 0.2])
     assert st.camera_position_enu_m[0] - st.position_enu_m[0] == pytest.approx(ned_to_enu(offset_ned))
     assert st.range_m[0] == pytest.approx(3.0, abs=1e-9)  # the standoff is the camera's
+
+
+def test_survey_turns_by_banking_as_a_coordinated_flight() -> None:
+    """A VTOL survey leg: 22 m/s east, a 90 deg right turn at 35 deg of bank, 22 m/s south; in the turn the roll
+    is the bank and the lateral acceleration g tan(bank); position, velocity and acceleration consistent."""
+    sc = scenario(
+        trajectory={"kind": "survey", "speed_m_s": 22.0, "course_deg": 90.0, "leg_s": 6.0, "legs": 1,
+                    "turn_deg": 90.0, "bank_deg": 35.0, "altitude_m": 30.0},
+    )  # fmt: skip
+    traj = Trajectory(sc)
+    st = traj.state(np.array([3.0, 9.0, 15.0]))
+    np.testing.assert_allclose(st.velocity_enu_m_s[0], [22.0, 0.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(st.velocity_enu_m_s[2], [0.0, -22.0, 0.0], atol=0.05)
+    roll, _, _ = q_to_euler_zyx(st.q_body_ned[1])
+    assert math.degrees(float(roll)) == pytest.approx(35.0, abs=0.1)
+    assert float(np.linalg.norm(st.accel_enu_m_s2[1])) == pytest.approx(
+        GRAVITY_M_S2 * math.tan(math.radians(35.0)), rel=1e-3
+    )
+    dt = 0.001
+    tau = np.arange(0.5, 18.0, dt)
+    s = traj.state(tau)
+    assert np.abs((s.position_enu_m[2:] - s.position_enu_m[:-2]) / (2 * dt) - s.velocity_enu_m_s[1:-1]).max() < 1e-3
+    assert np.abs(np.diff(s.accel_enu_m_s2, axis=0)).max() < 0.05  # the bank rolls in and out smoothly
+    with pytest.raises(Exception, match="bank_deg"):
+        scenario(trajectory={"kind": "survey", "bank_deg": 80.0})

@@ -45,7 +45,7 @@ Window: TypeAlias = tuple[float, float]
 SCENARIO_DIR = scenario_dir()
 """Where the scenario files are: inside the installed wheel, else the repository's hil_sim/scenarios."""
 
-TRAJECTORY_KINDS = ("pier_scan", "deck_pass", "hover")
+TRAJECTORY_KINDS = ("pier_scan", "deck_pass", "hover", "survey")
 LIDAR_MAX_RANGE_M = {"v3": 40.0, "v3hp": 40.0}
 """Longest range with a return [m] per LIDAR-Lite model."""
 
@@ -159,7 +159,26 @@ class Hover(TrajectoryCommon):
     """Offset to the right (seen from the drone) of the structure point [m]."""
 
 
-TrajectorySpec: TypeAlias = PierScan | DeckPass | Hover
+@dataclass(frozen=True, kw_only=True)
+class Survey(TrajectoryCommon):
+    """A VTOL / fixed-wing survey in forward flight (`icgt.sim.survey`): ``legs`` straights of ``leg_s``
+    joined by banked coordinated turns of ``turn_deg`` (alternately right and left, a lawn-mower pattern)."""
+
+    kind: Literal["survey"] = "survey"
+    speed_m_s: float = 22.0
+    altitude_m: float = 30.0
+    """ENU height of the flight [m]."""
+    start_m: tuple[float, float] = (0.0, 0.0)
+    """ENU east, north of the start [m]."""
+    course_deg: float = 90.0
+    """Compass course of the first leg [deg]."""
+    leg_s: float = 8.0
+    legs: int = 3
+    turn_deg: float = 180.0
+    bank_deg: float = 30.0
+
+
+TrajectorySpec: TypeAlias = PierScan | DeckPass | Hover | Survey
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -621,6 +640,21 @@ def _read_trajectory(r: _Reader, structure: Structure) -> TrajectorySpec:
         # the ramps must fit: the pass covers speed * (T - ramp) with T >= 2 ramps
         if spec.length_m < spec.speed_m_s * spec.ramp_s:
             r.fail("length_m", f"too short to reach {spec.speed_m_s:g} m/s with ramp_s {spec.ramp_s:g}")
+    elif kind == "survey":
+        start = r.numbers("start_m")
+        if start and len(start) != 2:
+            r.fail("start_m", f"must be [east, north] in metres, got {list(start)}")
+        spec = Survey(
+            speed_m_s=r.number("speed_m_s", 22.0, min_value=5.0, max_value=40.0),
+            altitude_m=r.number("altitude_m", 30.0),
+            start_m=(float(start[0]), float(start[1])) if start else (0.0, 0.0),
+            course_deg=r.number("course_deg", 90.0, min_value=-360.0, max_value=360.0),
+            leg_s=r.number("leg_s", 8.0, positive=True),
+            legs=r.integer("legs", 3, min_value=1, max_value=100),
+            turn_deg=r.number("turn_deg", 180.0, min_value=-360.0, max_value=360.0),
+            bank_deg=r.number("bank_deg", 30.0, min_value=5.0, max_value=60.0),
+            **common,
+        )
     else:
         spec = Hover(
             standoff_m=r.number("standoff_m", 3.0, positive=True),

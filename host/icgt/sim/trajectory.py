@@ -35,7 +35,8 @@ from icgt.geodesy import (
     q_rotate,
     q_to_euler_zyx,
 )
-from icgt.sim.scenario import DeckPass, Hover, PierScan, Scenario
+from icgt.sim.scenario import DeckPass, Hover, PierScan, Scenario, Survey
+from icgt.sim.survey import Leg, SurveyFlight
 
 BoolArray = npt.NDArray[np.bool_]
 GRAVITY_M_S2 = 9.80665
@@ -298,7 +299,12 @@ class Trajectory:
     def __init__(self, scenario: Scenario) -> None:
         self.scenario = scenario
         self.axes = _plane_axes(scenario)
-        self.path, self.heading_deg = _camera_path(scenario, self.axes)
+        spec = scenario.trajectory
+        self.survey = _survey_flight(spec) if isinstance(spec, Survey) else None
+        if self.survey is not None:  # a placeholder path: the survey flight gives the kinematics
+            self.path, self.heading_deg = _Path([_Segment(0.0, self.survey.duration_s, (0, 0, 0), (0, 0, 0), 0.5)]), 0.0
+        else:
+            self.path, self.heading_deg = _camera_path(scenario, self.axes)
         cam = scenario.camera
         self.lever_arm_body = np.array(cam.lever_arm_m)
         self.q_mount = q_from_euler_zyx(
@@ -364,8 +370,13 @@ class Trajectory:
         n = tau.size
         h = _FD_H_S
         taus = np.concatenate([tau - h, tau, tau + h])
-        pos, vel, acc = self._kinematics(taus)
-        q_b = _align_signs(self._body_attitude(acc), n)
+        if self.survey is not None:
+            st = self.survey.state(taus)
+            pos, vel, acc = st.position_enu_m, st.velocity_enu_m_s, st.accel_enu_m_s2
+            q_b = _align_signs(st.q_body_ned, n)
+        else:
+            pos, vel, acc = self._kinematics(taus)
+            q_b = _align_signs(self._body_attitude(acc), n)
         q_c = _align_signs(self._camera_attitude(q_b), n)
         lever_enu = ned_to_enu(q_rotate(q_b, self.lever_arm_body))
         cam_pos = pos + lever_enu
@@ -405,6 +416,20 @@ class Trajectory:
         t = num / safe
         valid = np.isfinite(t) & (t > 0.0) & (t <= self.max_range_m)
         return np.where(valid, t, np.nan), valid
+
+
+def _survey_flight(spec: Survey) -> SurveyFlight:
+    """The survey's legs: a straight, then a turn (alternately right and left) and a straight, ``legs`` times."""
+    legs = [Leg("straight", spec.leg_s)]
+    for k in range(spec.legs):
+        legs.append(Leg("turn", turn_deg=spec.turn_deg * (1 if k % 2 == 0 else -1), bank_deg=spec.bank_deg))
+        legs.append(Leg("straight", spec.leg_s))
+    return SurveyFlight(
+        legs,
+        speed_m_s=spec.speed_m_s,
+        heading_deg=spec.course_deg,
+        start_enu_m=(spec.start_m[0], spec.start_m[1], spec.altitude_m),
+    )
 
 
 def _align_signs(q: FloatArray, n: int) -> FloatArray:

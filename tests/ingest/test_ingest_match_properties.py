@@ -235,3 +235,25 @@ def test_a_card_holding_more_than_the_log_never_pairs_wrongly(c: dict[str, Any])
         c["flight"], c["other"], c["cut"], c["other_after"], c["shift_s"], c["step_s"]
     )
     _assert_never_wrong_and_all_accounted(match_times(frames, images), frames, images, truth)
+
+
+@settings(max_examples=40, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
+@given(_compositions)
+def test_the_sampled_lower_bound_gives_the_verdict_of_scoring_every_offset(c: dict[str, Any]) -> None:
+    """The evidence check's shortcut (`evidence._scores`: offsets a sampled lower bound rules out are not scored)
+    on the composed cards, with a sample of 25 exposures so that it runs: the same best offset and rivals as
+    scoring every offset, and the same pairs."""
+    import icgt.ingest.matching.evidence as evidence
+
+    frames, images, _ = composed_card(c["flight"], c["other"], c["cut"], c["other_after"], c["shift_s"], c["step_s"])
+    full = match_times(frames, images)
+    saved = evidence.LOWER_BOUND_SAMPLE
+    evidence.LOWER_BOUND_SAMPLE = 25
+    try:
+        sampled = match_times(frames, images)
+    finally:
+        evidence.LOWER_BOUND_SAMPLE = saved
+    assert [(p.image.name, p.frame.frame_seq) for p in sampled.pairs] == [
+        (p.image.name, p.frame.frame_seq) for p in full.pairs
+    ]
+    assert sampled.notes == full.notes

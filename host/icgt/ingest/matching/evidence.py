@@ -114,6 +114,57 @@ def contradictions(card: Card, fr: Frames, offsets: FloatArray, slack_s: float) 
     return out_c, out_n
 
 
+LOWER_BOUND_SAMPLE = 2000
+"""About this many exposures give the lower bound that spares most offsets their full scoring (`_scores`)."""
+
+
+def missing_lower_bound(card: Card, fr: Frames, offsets: FloatArray, slack_s: float, stride: int) -> FloatArray:
+    """Per offset, the exposures among every ``stride``-th one that fit no image: never more than the offset's
+    contradictions over all exposures (a subset misses no more than the whole), at a fraction of their cost."""
+    ti = card.timed
+    lo_all = card.c[ti]
+    order = np.argsort(lo_all, kind="stable")
+    lo = lo_all[order]
+    hi_run = np.maximum.accumulate((card.c[ti] + card.r[ti])[order]) if len(lo) else lo
+    xe = fr.x[fr.eligible][::stride]
+    tol = float(np.median(fr.tol)) + slack_s
+    out = np.zeros(len(offsets))
+    if not len(xe) or not len(lo):
+        return out
+    for k in range(0, len(offsets), 256):
+        p = xe[None, :] + offsets[k : k + 256, None]
+        idx = np.searchsorted(lo, p + tol, side="right") - 1
+        out[k : k + 256] = (~((idx >= 0) & (hi_run[np.maximum(idx, 0)] >= p - tol))).sum(axis=1)
+    return out
+
+
+def _scores(card: Card, fr: Frames, offsets: FloatArray, slack_s: float) -> tuple[FloatArray, FloatArray]:
+    """`contradictions` for the offsets that can be the best or its rivals (the others get +inf, overlap 0).
+
+    A lower bound from a sample of the exposures first (`missing_lower_bound`); the offsets with the least of it
+    are scored in full, and only those whose bound leaves them within OFFSET_MARGIN of that best are scored too:
+    the rest score more than the best plus the margin, so they can be neither. Same verdict as scoring them all
+    (an hour at 5 fps: 4 500 offsets x 18 000 exposures)."""
+    n = len(offsets)
+    stride = max(1, int(fr.eligible.sum()) // LOWER_BOUND_SAMPLE)
+    if stride == 1 or n <= 64:
+        return contradictions(card, fr, offsets, slack_s)
+    bound = missing_lower_bound(card, fr, offsets, slack_s, stride)
+    first = np.argsort(bound, kind="stable")[:64]
+    score = np.full(n, np.inf)
+    overlap = np.zeros(n)
+    score[first], overlap[first] = contradictions(card, fr, offsets[first], slack_s)
+    useful = overlap[first] > 0
+    if not useful.any():
+        return contradictions(card, fr, offsets, slack_s)
+    best = float(score[first][useful].min())
+    rest = np.flatnonzero(bound <= best + OFFSET_MARGIN + 1e-9)
+    rest = rest[~np.isin(rest, first)]
+    if len(rest):
+        score[rest], overlap[rest] = contradictions(card, fr, offsets[rest], slack_s)
+    return score, overlap
+
+
 def evidence_reach(card: Card, fr: Frames, scan_reach_s: float, tolerance_s: float, max_scan_s: float) -> float:
     """Offsets this close to the best are its neighbourhood [s]: at least as far as the scan around the fit reaches,
     and a whole EXIF interval and two trigger intervals where the scan's cap allows (a shift by about one EXIF
@@ -142,7 +193,7 @@ def judge(card: Card, fr: Frames, reach_s: float, slack_s: float) -> Verdict | N
     top = bins[np.argsort(-counts, kind="stable")[:MAX_OFFSETS]]
     # three points per bin: the optimum may lie anywhere in a bin of 1 s EXIF times
     offsets = np.concatenate([(top + f) * q for f in (0.2, 0.5, 0.8)])
-    score, overlap = contradictions(card, fr, offsets, slack_s)
+    score, overlap = _scores(card, fr, offsets, slack_s)
     # Only offsets under which the log and the card overlap at all can be judged (an exposure paired).
     useful = overlap > 0
     if not useful.any():

@@ -4,11 +4,11 @@
     .venv/bin/python benchmarks/bound_coverage.py [--flights N] [--mode live|recompute|both]
 
 Flights: the VTOL survey of `icgt.sim.survey.vtol_survey` (21-24 m/s, 25-35 deg banked turns, a speed-up, a
-climb) and N random survey flights (`random_flight`). Position telemetry (GLOBAL_POSITION_INT and
-LOCAL_POSITION_NED) at 10 Hz with RTK-fixed accuracy, silent in gaps of 0.5, 1, 2, 3.5 and 5 s placed on
-straights, in turns and under acceleration (speed changes and climbs); attitude at 50 Hz throughout. Every
-frame (5 fps) is placed by the real geotagger (`icgt.sim.bound_check`) and scored against the truth at
-its true mid-exposure.
+climb), N random survey flights (`random_flight`), and the pier scan and deck pass scenarios (rows "scan ...").
+Position telemetry (GLOBAL_POSITION_INT and LOCAL_POSITION_NED) at 10 Hz with RTK-fixed accuracy, silent in gaps
+of 0.5, 1, 2, 3.5 and 5 s placed on straights, in turns and under acceleration (speed changes and climbs; the
+scans' ramps and steps); attitude at 50 Hz throughout. Every frame (5 fps) is placed by the real geotagger
+(`icgt.sim.bound_check`) and scored against the truth at its true mid-exposure.
 
 Per class: coverage (fraction of placed frames whose true error is within the bound, horizontal / vertical /
 attitude), sharpness (median bound / median true error), frames withheld (no_pose: no position rather than a
@@ -28,14 +28,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from icgt.sim.bound_check import FrameScore, Gap, score_flight
-from icgt.sim.survey import SurveyFlight, random_flight, vtol_survey
+from icgt.sim.bound_check import FlightTruth, FrameScore, Gap, ScenarioFlight, score_flight
+from icgt.sim.scenario import load_scenario
+from icgt.sim.survey import random_flight, vtol_survey
 
 GAPS_S = (0.5, 1.0, 2.0, 3.5, 5.0)
 PLACES = {"straight": ("straight",), "turn": ("turn",), "accel": ("speed", "climb")}
 
 
-def place_gaps(flight: SurveyFlight, rng: np.random.Generator) -> list[Gap]:
+def place_gaps(flight: FlightTruth, rng: np.random.Generator) -> list[Gap]:
     """One gap per (duration, place) where the flight has a segment of that kind; gaps 4 s apart at least."""
     gaps: list[Gap] = []
     for duration in GAPS_S:
@@ -56,7 +57,7 @@ def place_gaps(flight: SurveyFlight, rng: np.random.Generator) -> list[Gap]:
     return gaps
 
 
-def _place(flight: SurveyFlight, gap: Gap) -> str:
+def _place(flight: FlightTruth, gap: Gap) -> str:
     mid = flight.segment_at(gap.start_s + gap.duration_s / 2)
     return next(name for name, kinds in PLACES.items() if mid in kinds) if mid != "straight" else "straight"
 
@@ -108,13 +109,17 @@ def summarise(frames: list[FrameScore]) -> Row:
 def run(n_flights: int, mode: str) -> dict[str, list[FrameScore]]:
     classes: dict[str, list[FrameScore]] = defaultdict(list)
     rng = np.random.default_rng(32)
-    flights = [vtol_survey()] + [random_flight(np.random.default_rng([32, k]), 90.0) for k in range(n_flights)]
-    for k, flight in enumerate(flights):
+    flights: list[tuple[str, FlightTruth]] = [("survey", vtol_survey())]
+    flights += [("survey", random_flight(np.random.default_rng([32, k]), 90.0)) for k in range(n_flights)]
+    flights += [("pier", ScenarioFlight(load_scenario(name))) for name in ("pier_scan", "deck_pass")]
+    for k, (family, flight) in enumerate(flights):
         gaps = place_gaps(flight, rng)
         places = {g: _place(flight, g) for g in gaps}
         for f in score_flight(flight, gaps, mode=mode, seed=k):  # type: ignore[arg-type]
             gap = next((g for g in gaps if g.holds(f.t_s)), None)
             key = "no gap" if gap is None else f"{gap.duration_s:g} s {places[gap]}"
+            if family == "pier":  # the inspection scenarios apart: slow scans, the deck pass's ramps
+                key = f"scan {key}"
             classes[key].append(f)
             classes["all"].append(f)
     return classes
@@ -130,17 +135,18 @@ def main() -> None:
         classes = run(args.flights, mode)
         print(f"\n{mode}: coverage = fraction of placed frames within their 95 % bound (goal >= 0.95)")
         head = (
-            f"{'class':<16}{'frames':>7}{'placed':>7}  {'cover h/v/att':>17}  {'sharp h/v/att':>18}"
+            f"{'class':<20}{'frames':>7}{'placed':>7}  {'cover h/v/att':>17}  {'sharp h/v/att':>18}"
             f"  {'worst m':>8}  {'>1m unflagged':>13}  {'peer cover h/v':>14}"
         )
         print(head)
-        order = ["no gap"] + [f"{g:g} s {p}" for g in GAPS_S for p in PLACES] + ["all"]
+        order = ["no gap"] + [f"{g:g} s {p}" for g in GAPS_S for p in PLACES]
+        order += ["scan no gap"] + [f"scan {g:g} s {p}" for g in GAPS_S for p in PLACES] + ["all"]
         for key in order:
             if key not in classes:
                 continue
             r = summarise(classes[key])
             print(
-                f"{key:<16}{r.n:>7}{r.placed:>7}  {r.h_cov:>5.3f} {r.v_cov:>5.3f} {r.a_cov:>5.3f}"
+                f"{key:<20}{r.n:>7}{r.placed:>7}  {r.h_cov:>5.3f} {r.v_cov:>5.3f} {r.a_cov:>5.3f}"
                 f"  {r.h_sharp:>5.1f} {r.v_sharp:>5.1f} {r.a_sharp:>5.1f}  {r.worst_m:>8.2f}  {r.unflagged_1m:>13}"
                 f"  {r.naive_h_cov:>6.3f} {r.naive_v_cov:>6.3f}"
             )

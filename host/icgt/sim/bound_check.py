@@ -16,23 +16,60 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, Protocol
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from icgt.geodesy import LocalFrame, q_multiply, q_rotate
+from icgt.geodesy import FloatArray, LocalFrame, q_multiply, q_rotate
 from icgt.geotag.geotagger import GeotagConfig, Geotagger
 from icgt.geotag.record import FrameFlag, FrameRecord
 from icgt.mavlink.link_types import MavlinkMessage
 from icgt.mavlink.telemetry import TelemetryStore
 from icgt.protocol.messages import Exposure
-from icgt.sim.survey import SurveyFlight
+from icgt.sim.scenario import Scenario
+from icgt.sim.survey import SurveyState
+from icgt.sim.trajectory import Trajectory, TruthState
 
-__all__ = ["FrameScore", "Gap", "TelemetryPlan", "score_flight"]
+__all__ = ["FlightTruth", "FrameScore", "Gap", "ScenarioFlight", "TelemetryPlan", "score_flight"]
 
 _ORIGIN = (47.397742, 8.545594, 488.0)
 _BOOT0_US = 5_000_000  # the flight starts 5 s after the autopilot booted
+
+
+class FlightTruth(Protocol):
+    """What is scored: a flight's truth (`icgt.sim.survey.SurveyFlight`, or a scenario's via `ScenarioFlight`)."""
+
+    @property
+    def duration_s(self) -> float: ...
+    @property
+    def segments(self) -> list[tuple[str, float, float]]: ...  # (kind, start [s], end [s])
+    def state(self, t_s: FloatArray | float) -> SurveyState | TruthState: ...
+    def segment_at(self, t_s: float) -> str: ...
+
+
+class ScenarioFlight:
+    """A simulator scenario's flight (pier scan, deck pass, ...) as a `FlightTruth`: segments ``speed`` where the
+    vehicle accelerates by more than 0.1 m/s^2, else ``straight``."""
+
+    def __init__(self, scenario: Scenario) -> None:
+        self._traj = Trajectory(scenario)
+        self.duration_s = float(min(scenario.duration_s, self._traj.motion_end_s))
+        t = np.arange(0.0, self.duration_s, 0.1)
+        accel = np.linalg.norm(self._traj.state(t).accel_enu_m_s2, axis=1) > 0.1
+        self.segments: list[tuple[str, float, float]] = []
+        start = 0
+        for k in range(1, len(t) + 1):
+            if k == len(t) or accel[k] != accel[start]:
+                kind = "speed" if accel[start] else "straight"
+                self.segments.append((kind, float(t[start]), float(t[k - 1]) + 0.1))
+                start = k
+
+    def state(self, t_s: FloatArray | float) -> TruthState:
+        return self._traj.state(t_s)
+
+    def segment_at(self, t_s: float) -> str:
+        return next((k for k, a, b in self.segments if a <= t_s < b), "straight")
 
 
 @dataclass(frozen=True)
@@ -127,7 +164,7 @@ def _small_rotation(rng: np.random.Generator, sigma_deg: float) -> np.ndarray:
 
 
 def _messages(
-    flight: SurveyFlight, plan: TelemetryPlan, gaps: list[Gap], rng: np.random.Generator, frame: LocalFrame
+    flight: FlightTruth, plan: TelemetryPlan, gaps: list[Gap], rng: np.random.Generator, frame: LocalFrame
 ) -> list[tuple[float, object]]:
     """(time [s], pymavlink message) of everything the autopilot sends, in time order."""
     mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
@@ -189,7 +226,7 @@ def _wire(mav: mavlink2.MAVLink, msg: object) -> object:
 
 
 def score_flight(
-    flight: SurveyFlight,
+    flight: FlightTruth,
     gaps: list[Gap],
     *,
     plan: TelemetryPlan | None = None,
@@ -243,7 +280,7 @@ def score_flight(
     return [_score(flight, gaps, plan, f) for f in frames]
 
 
-def _score(flight: SurveyFlight, gaps: list[Gap], plan: TelemetryPlan, f: FrameRecord) -> FrameScore:
+def _score(flight: FlightTruth, gaps: list[Gap], plan: TelemetryPlan, f: FrameRecord) -> FrameScore:
     t = (f.mid_device_us - _BOOT0_US) / 1e6
     st = flight.state(t)
     lever_ned = q_rotate(st.q_body_ned[0], np.asarray(plan.lever_arm_body_m))

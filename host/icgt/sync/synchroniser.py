@@ -136,6 +136,7 @@ class Synchroniser:
             "autopilot_reboots": 0,
             "frames": 0,
             "late_pps_skipped": 0,
+            "autopilot_second_sender_messages": 0,
         }
         self._timesync_warned = False
         self._utc_source = ""  # the UTC source the last poll used, to log each change with its jump
@@ -208,6 +209,9 @@ class Synchroniser:
             return None
         mtype = str(msg.get_type())
         fresh = self.autopilot.observe(msg, mtype, rx_ns)
+        if fresh is Freshness.SECOND_SENDER:
+            self._second_sender(rx_ns)
+            return None
         if fresh is not None and fresh is not Freshness.SAME:
             self.timesync.forget()
             if fresh is Freshness.REBOOTED:
@@ -232,6 +236,18 @@ class Synchroniser:
         if mtype == "SYSTEM_TIME" and fresh is not None:  # the autopilot's own, not a companion's
             self.utc.add_system_time(int(msg.time_unix_usec), int(msg.time_boot_ms))
         return None
+
+    def _second_sender(self, rx_ns: int) -> None:
+        """A message with the autopilot's ids that is not of its stream: counted (`autopilot_second_sender_messages`
+        in every counters record), said loudly the first time, and kept out of the clocks, TIMESYNC and poses."""
+        self.counts["autopilot_second_sender_messages"] += 1
+        if self.counts["autopilot_second_sender_messages"] == 1:
+            detail = (
+                f"a second sender uses the autopilot's MAVLink id {self.autopilot.system}:{self.autopilot.component}: "
+                f"{self.autopilot.detail}; its messages are not believed (counted as autopilot_second_sender_messages)"
+            )
+            log.warning("%s", detail)
+            self.events.append(SyncEvent(Freshness.SECOND_SENDER.value, rx_ns, detail))
 
     # ------------------------------------------------------------------ output
     def poll(self, now_ns: int, *, flush: bool = False) -> list[FrameRecord]:

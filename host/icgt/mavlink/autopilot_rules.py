@@ -88,6 +88,7 @@ class AutopilotPresence:
     seq_counts: bool = False  # its sequence numbers have been seen to advance (a sender that keeps them at 0 never)
     second_sender_messages: int = 0
     _boot_by_type: dict[str, int] = field(default_factory=dict)
+    _gap_ns: int = 0  # the silence before the messages without a boot clock accepted since the last with one
 
     def observe(self, msg: Any, mtype: str, rx_ns: int) -> Freshness | None:
         if int(msg.get_srcSystem()) != self.system:
@@ -107,7 +108,8 @@ class AutopilotPresence:
             self.detail = f"first {mtype}"
             return Freshness.SEEN
         silent_ns = rx_ns - self.last_rx_ns
-        refusal = self._refusal(mtype, boot_ms, seq, rx_ns, silent_ns)
+        # a reboot's first messages may carry no boot clock (HEARTBEAT): the silence before them still counts
+        refusal = self._refusal(mtype, boot_ms, seq, rx_ns, max(silent_ns, self._gap_ns))
         if refusal == "rebooted":
             assert boot_ms is not None and self.last_boot_ms is not None
             self.detail = (
@@ -145,13 +147,17 @@ class AutopilotPresence:
             if last is not None and boot_ms < last:
                 return f"time_boot_ms {boot_ms} is behind the autopilot's last {mtype} ({last}): an echo or a replay"
             return ""
-        if self.seq_counts and self.last_seq is not None and silent_ns <= self.timeout_ns:
+        if self.seq_counts and self.last_seq is not None and silent_ns < REBOOT_SILENCE_NS:
             step = (seq - self.last_seq) & 0xFF
             if not (1 <= step <= SEQ_AHEAD_MAX or step >= 256 - SEQ_REORDER_MAX):
                 return f"the autopilot's stream is at sequence number {self.last_seq}"
         return ""
 
     def _accept(self, mtype: str, boot_ms: int | None, seq: int, rx_ns: int) -> None:
+        if boot_ms is None and self.last_rx_ns is not None:
+            self._gap_ns = max(self._gap_ns, rx_ns - self.last_rx_ns)
+        elif boot_ms is not None:
+            self._gap_ns = 0
         self.last_rx_ns = rx_ns
         if self.last_seq is not None:
             step = (seq - self.last_seq) & 0xFF

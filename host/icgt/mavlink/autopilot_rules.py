@@ -21,6 +21,7 @@ __all__ = [
     "REBOOT_SILENCE_NS",
     "AutopilotPresence",
     "Freshness",
+    "boot_clock_ms",
     "is_autopilot_heartbeat",
 ]
 
@@ -47,6 +48,17 @@ _NOT_AUTOPILOT_TYPES = frozenset(
 def is_autopilot_heartbeat(msg: Any) -> bool:
     """A HEARTBEAT from a flight controller (not a GCS, camera, gimbal or companion computer)."""
     return int(msg.autopilot) != mavlink2.MAV_AUTOPILOT_INVALID and int(msg.type) not in _NOT_AUTOPILOT_TYPES
+
+
+def boot_clock_ms(msg: Any, mtype: str) -> int | None:
+    """The sender's boot clock a message carries [ms]: time_boot_ms, or a TIMESYNC answer's tc1 (its boot clock in
+    ns, ArduPilot and PX4); None for messages without one."""
+    if mtype in BOOT_CLOCK_TYPES:
+        boot = getattr(msg, "time_boot_ms", None)
+        return boot if isinstance(boot, int) else None
+    if mtype == "TIMESYNC" and int(msg.tc1) > 0:
+        return int(msg.tc1) // 1_000_000
+    return None
 
 
 class Freshness(enum.Enum):
@@ -100,8 +112,7 @@ class AutopilotPresence:
             self.component = comp
         if comp != self.component:
             return None
-        boot = getattr(msg, "time_boot_ms", None) if mtype in BOOT_CLOCK_TYPES else None
-        boot_ms = boot if isinstance(boot, int) else None
+        boot_ms = boot_clock_ms(msg, mtype)
         seq = int(msg.get_seq())
         if self.last_rx_ns is None:
             self._accept(mtype, boot_ms, seq, rx_ns)

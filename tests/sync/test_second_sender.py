@@ -14,7 +14,10 @@ from collections.abc import Iterator
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from icgt.sync import Synchroniser
+from icgt.ingest.recompute import _Feeder
+from icgt.mavlink.signing import SigningState, key_from_passphrase
+from icgt.recorder import topics
+from icgt.sync import SyncConfig, Synchroniser
 
 S = 1_000_000_000
 MS = 1_000_000
@@ -127,3 +130,49 @@ def test_a_real_reboot_is_still_believed() -> None:
     kinds = [e.kind for e in sync.take_events()]
     assert kinds.count("autopilot_rebooted") == 1 and "autopilot_second_sender" not in kinds
     assert sync.counters()["autopilot_second_sender_messages"] == 0
+
+
+def test_with_signing_configured_unsigned_messages_with_the_autopilots_id_are_not_believed() -> None:
+    """The autopilot signs with the key; a stray sender without it sends positions and heartbeats as 1:1."""
+    key = key_from_passphrase("bridge inspection")
+    autopilot = Sender()
+    SigningState(key, link_id=1).attach_output(autopilot.mav)
+    real = list(autopilot.stream(0, 20_000))
+    stray = Sender()
+    spoofed = []
+    for k in range(30):
+        rx = BOOT_HOST_NS + 5 * S + k * 100 * MS + 37 * MS
+        spoofed += [(rx, stray.position(5_000 + 100 * k + 37)), (rx + MS, stray.heartbeat())]
+    sync = Synchroniser(SyncConfig(require_signed_autopilot=True))
+    parser = mavlink2.MAVLink(None)
+    SigningState(key).attach_input(parser)
+    for rx, frame in sorted(real + spoofed, key=lambda f: f[0]):
+        for msg in parser.parse_buffer(frame) or []:
+            sync.on_mavlink(msg, rx)
+    counters = sync.counters()
+    assert counters["autopilot_unsigned_messages"] == 60
+    assert counters["autopilot_second_sender_messages"] == 0  # refused before: on its signature alone
+    assert len(sync.telemetry.fused.samples()) == 200
+    said = [e for e in sync.take_events() if e.kind == "autopilot_unsigned"]
+    assert len(said) == 1 and "no valid signature and signing is configured" in said[0].detail
+
+
+def test_the_recompute_believes_what_the_recorder_believed_with_signing() -> None:
+    """The log keeps the recorder's signature verdict ("signed", the key is not in the log); the recompute's
+    synchroniser, fed the logged payloads, takes and refuses the same messages as the live one."""
+    key = key_from_passphrase("bridge inspection")
+    autopilot, stray = Sender(), Sender()
+    SigningState(key, link_id=1).attach_output(autopilot.mav)
+    frames = [*autopilot.stream(0, 5_000), (BOOT_HOST_NS + 2 * S + 37 * MS, stray.position(2_037))]
+    parser = mavlink2.MAVLink(None)
+    SigningState(key).attach_input(parser)
+    live = Synchroniser(SyncConfig(require_signed_autopilot=True))
+    replay = Synchroniser(SyncConfig(require_signed_autopilot=True))
+    feeder = _Feeder(replay, None, 0.0, requests_logged=True)
+    for rx, frame in sorted(frames, key=lambda f: f[0]):
+        for msg in parser.parse_buffer(frame) or []:
+            live.on_mavlink(msg, rx)
+            assert feeder._mavlink(topics.mavlink_topic(msg.get_type()), topics.mavlink_payload(msg, rx))
+    assert live.counters()["autopilot_unsigned_messages"] == 1
+    assert replay.counters() == live.counters()
+    assert replay.telemetry.fused.samples() == live.telemetry.fused.samples()

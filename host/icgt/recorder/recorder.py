@@ -140,7 +140,11 @@ class Recorder:
         self.live: Any = None  # icgt.recording.live.LiveView while serving
         self._control_path = control_socket
         self._mono_to_utc_ns = time.time_ns() - time.monotonic_ns()  # fixed: log times stay monotonic
-        self.sync_config = SyncConfig(geotag=config.camera, autopilot_system=config.mavlink.system_id)
+        self.sync_config = SyncConfig(
+            geotag=config.camera,
+            autopilot_system=config.mavlink.system_id,
+            require_signed_autopilot=config.mavlink.signing_key_file is not None,
+        )
         self.sync = Synchroniser(self.sync_config)  # fed and polled by the worker thread only
         self.schedule = StepSchedule()  # when the worker steps: every 100 ms, and when a frame is due
         self.views = FoxgloveViews(

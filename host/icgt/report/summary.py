@@ -90,6 +90,9 @@ class FlightData:
     """Track samples not drawn, by reason (NO_FIX, OUTSIDE)."""
     sync_counters: dict[str, int] = field(default_factory=dict)
     """The synchroniser's last counters (/icgt/counters)."""
+    unreachable_at_end: tuple[int, str] | None = None
+    """The recording ended with capture running on an unreachable device: (exposures it was known to be taking,
+    interval x outage, 0 if the rate is unknown; the recorder's account)."""
 
     def t_s(self, host_ns: int) -> float:
         return (host_ns - self.t0_host_ns) / 1e9
@@ -198,7 +201,9 @@ def _events(data: FlightData, events: list[dict[str, Any]]) -> None:
         t = data.t_s(int(e["_host"]))
         link, kind = str(e.get("link", "?")), str(e.get("kind", "?"))
         outage = int(e.get("outage_ns") or 0)
-        if kind in ("sequence_gap", "frames_rejected", "history_lost"):
+        if kind == "unreachable_at_end":
+            data.unreachable_at_end = (int(e.get("count") or 0), str(e.get("detail", kind)))
+        elif kind in ("sequence_gap", "frames_rejected", "history_lost"):
             data.losses.append(Loss(link, t, kind, int(e.get("count") or 0)))
         elif kind in ("disconnected", "autopilot_lost"):
             # autopilot_lost comes after its silence timeout: its outage_ns is the time since the last message
@@ -342,11 +347,22 @@ def summarize(data: FlightData) -> list[tuple[str, str]]:
     rejected = sum(x.count for x in data.losses if x.kind == "frames_rejected")
     rows.append(("device messages missing / corrupt frames", f"{lost} / {rejected}"))
     link = data.metadata.get("icgt.device_link", {})
+    if data.unreachable_at_end is not None:
+        taken, _ = data.unreachable_at_end
+        rows.append(
+            (
+                "exposures lost at the end",
+                "unknown, device unreachable at the end"
+                + (f": it was taking about {taken} (capture interval x outage)" if taken else "")
+                + "; the capture stop was not delivered",
+            )
+        )
     if "resend_recovered" in link:
         rows.append(
             (
                 "device frames recovered (RESEND) / lost",
-                f"{link.get('resend_recovered')} recovered; lost: {link.get('lost_exposures')} exposures, "
+                f"{link.get('resend_recovered')} recovered; lost: {link.get('lost_exposures')} exposures"
+                f"{' + unknown (device unreachable at the end)' if data.unreachable_at_end else ''}, "
                 f"{link.get('lost_pps')} PPS, {link.get('lost_samples')} samples, {link.get('lost_other')} "
                 f"status/replies/logs, {link.get('lost_unknown')} unknown",
             )

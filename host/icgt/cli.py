@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import signal
 import sys
 import threading
@@ -33,6 +34,20 @@ def _until_signal(stop: Callable[[], None]) -> threading.Event:
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
     return done
+
+
+def _port(option: str, value: int) -> int:
+    """A UDP/TCP port given on the command line, refused (IcgtError naming the option) outside 1..65535."""
+    if not 1 <= value <= 65535:
+        raise IcgtError(f"{option} {value}: a port is a number from 1 to 65535")
+    return value
+
+
+def _seconds(option: str, value: float) -> float:
+    """A duration given on the command line, refused (IcgtError naming the option) unless finite and > 0."""
+    if not math.isfinite(value) or value <= 0.0:
+        raise IcgtError(f"{option} {value}: a duration is a finite number of seconds greater than 0")
+    return value
 
 
 def _cmd_version(_: argparse.Namespace) -> int:
@@ -64,6 +79,8 @@ def _cmd_record(args: argparse.Namespace) -> int:
     from icgt.control import default_socket_path
     from icgt.recorder import Recorder, load_config
 
+    if args.live is not None:
+        _port("--live", args.live)
     config = load_config(args.config).with_overrides(device_url=args.device, mavlink_url=args.mavlink, out_dir=args.out)
     recorder = Recorder(
         config, control_socket=args.socket or default_socket_path(), live_port=args.live, live_host=args.live_host
@@ -124,8 +141,11 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     from icgt.sim.scenario import load_scenario
     from icgt.sim.session import SimSession
 
+    mavlink_port = _port("--mavlink-port", args.mavlink_port)
+    gcs_port = _port("--gcs-port", args.gcs_port)
+    duration = None if args.duration is None else _seconds("--duration", args.duration)
     scenario = load_scenario(args.scenario)
-    session = SimSession(scenario, args.out, mavlink_port=args.mavlink_port, gcs_port=args.gcs_port)
+    session = SimSession(scenario, args.out, mavlink_port=mavlink_port, gcs_port=gcs_port)
     urls = session.start()
     print(f"scenario {scenario.name}: {scenario.duration_s:.0f} s", flush=True)
     print(f"  icgt record --device {urls.device} --mavlink {urls.mavlink}", flush=True)
@@ -133,7 +153,7 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     stop = threading.Event()
     _until_signal(stop.set)
     try:
-        session.wait_until(args.duration or scenario.duration_s, stop)
+        session.wait_until(duration or scenario.duration_s, stop)
     finally:
         session.stop()
     print(f"truth written to {args.out}")

@@ -46,6 +46,20 @@ def default_socket_path() -> Path:
     return Path(runtime) / "icgt-recorder.sock"
 
 
+# sun_path in struct sockaddr_un holds 108 bytes on Linux, with the terminating NUL.
+UNIX_PATH_MAX = 108
+
+
+def check_socket_path(path: Path) -> None:
+    """Refuse (ControlError) a control socket path too long for a Unix socket's address, naming its length."""
+    size = len(os.fsencode(path))
+    if size >= UNIX_PATH_MAX:
+        raise ControlError(
+            f"control socket path {str(path)!r} is {size} bytes long; a Unix socket path holds at most "
+            f"{UNIX_PATH_MAX - 1}: choose a shorter --socket"
+        )
+
+
 def peer_uid(sock: socket.socket) -> int:
     """The uid of the process at the other end of a connected Unix socket (SO_PEERCRED: pid, uid, gid)."""
     creds = sock.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, struct.calcsize("3i"))
@@ -92,6 +106,7 @@ class ControlServer:
         self._stop = threading.Event()
 
     def start(self) -> None:
+        check_socket_path(self.path)
         ensure_private_dir(self.path.parent, create=True)
         if self.path.exists():
             if _answers(self.path):
@@ -165,6 +180,7 @@ def request(path: Path, message: Request, *, timeout_s: float = 5.0) -> Reply:
 
     Refused (ControlError) when the socket's directory is not private to this user or the process
     serving it runs as another user."""
+    check_socket_path(path)
     ensure_private_dir(path.parent, create=False)
     try:
         with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:

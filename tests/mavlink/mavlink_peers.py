@@ -188,6 +188,10 @@ class AutopilotPeer(Peer):
     def silence(self) -> None:
         self._silent.set()
 
+    def resume(self) -> None:
+        """Answer again after `silence` (without starting a stream)."""
+        self._silent.clear()
+
     def _stream_loop(self, hz: float) -> None:
         next_hb = 0.0
         while self._streaming.is_set():

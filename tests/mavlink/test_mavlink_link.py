@@ -12,6 +12,7 @@ import pytest
 from mavlink_peers import AutopilotPeer, free_udp_port, wait_until
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from icgt.mavlink.autopilot_rules import REBOOT_SILENCE_NS
 from icgt.mavlink.frames import UndecodedBatch
 from icgt.mavlink.link import (
     DEFAULT_STREAM_RATES,
@@ -153,12 +154,49 @@ def test_reboot_detected_and_rates_requested_again(recorder):
         ap.send(ap.mav.attitude_encode(600_000, 0, 0, 0, 0, 0, 0))
         assert wait_until(lambda: len(link.rate_results()) == len(RATE_IDS))
         n = len(ap.interval_requests)
+        ap.silence()  # a rebooting autopilot is silent while it boots, then starts its sequence numbers again
+        time.sleep(REBOOT_SILENCE_NS / 1e9 + 0.1)
+        ap.resume()
+        ap.mav.seq = 0
         ap.send(ap.mav.attitude_encode(1_200, 0, 0, 0, 0, 0, 0))  # boot clock restarted
         assert wait_until(lambda: LinkEventKind.AUTOPILOT_REBOOTED in recorder.kinds())
         assert wait_until(lambda: len(ap.interval_requests) >= n + len(RATE_IDS))
     finally:
         ap.close()
         link.stop()
+
+
+def test_a_stray_sender_with_the_autopilots_ids_over_udp_is_counted_not_believed(recorder):
+    """Issue 30: ~70 GLOBAL_POSITION_INT with ids 1:1 and time_boot_ms near 1e9 from another socket while the
+    autopilot streams: no reboot (link or synchroniser), no rate-request storm, none of them in the poses."""
+    link, port = make_link(recorder, link_timeout_s=5.0)
+    link.start()
+    ap = AutopilotPeer(port)
+    stray = AutopilotPeer(port)
+    stray.boot_ns = ap.boot_ns - 1_000_000_000 * 1_000_000  # its boot clock reads about 1e9 ms
+    try:
+        ap.stream(hz=50)
+        assert wait_until(lambda: len(link.rate_results()) == len(RATE_IDS), timeout=10.0)
+        n = len(ap.interval_requests)
+        for k in range(70):
+            stray.send(stray.mav.global_position_int_encode(stray.boot_ms(), 473_977_000 + k, 85_455_000, 500_000,
+                                                            20_000, 0, 0, 0, 0))  # fmt: skip
+            time.sleep(0.01)
+        ap.send(ap.mav.global_position_int_encode(ap.boot_ms(), 473_977_000, 85_455_000, 500_000, 20_000, 0, 0, 0, 0))
+        assert wait_until(lambda: link.stats().messages_by_type.get("GLOBAL_POSITION_INT", 0) >= 71, timeout=10.0)
+    finally:
+        stray.close()
+        ap.close()
+        link.stop()
+    assert LinkEventKind.AUTOPILOT_REBOOTED not in recorder.kinds()
+    assert len(ap.interval_requests) == n  # no rates requested again
+    assert link.stats().second_sender_frames >= 70
+    with recorder.lock:
+        counters = recorder.sync.counters()
+        fused = recorder.sync.telemetry.fused.samples()
+    assert counters["autopilot_reboots"] == 0 and counters["autopilot_clock_resets"] == 0
+    assert counters["autopilot_second_sender_messages"] >= 70
+    assert fused and all(s.boot_us < 1e11 for s in fused)  # the autopilot's, up minutes; the stray's near 1e12
 
 
 def test_timesync_client_pairs_replies(recorder):

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from icgt.report.plots import coverage_grid
-from icgt.report.summary import FlightData, Loss, Outage, _events
+from icgt.report.summary import FlightData, Loss, Outage, _events, summarize
 
 
 def _data() -> FlightData:
@@ -100,4 +100,14 @@ def test_the_summary_states_what_resend_recovered_and_what_is_lost_by_kind() -> 
     rows = dict(summarize(data))
     assert rows["device frames recovered (RESEND) / lost"] == (
         "1559 recovered; lost: 2 exposures, 1 PPS, 1512 samples, 233 status/replies/logs, 0 unknown"
+    )
+
+
+def test_the_summary_says_how_many_messages_with_the_autopilots_id_were_not_believed() -> None:
+    data = _data()
+    assert not [label for label, _ in summarize(data) if "not believed" in label]  # none: no row
+    data.sync_counters = {"autopilot_second_sender_messages": 70, "autopilot_unsigned_messages": 3}
+    rows = dict(summarize(data))
+    assert rows["messages with the autopilot's id not believed"].startswith(
+        "70 from a second sender, 3 without a valid signature"
     )

@@ -181,9 +181,10 @@ def test_pending_requests_are_forgotten_when_the_autopilot_reboots():
     sync.on_mavlink(attitude(80_000), t + 10_000_000)
     sync.on_mavlink(attitude(80_100), t + 110_000_000)  # a later boot time: nothing happened
     sync.take_events()
-    ts1 = t + 200_000_000
+    ts1 = t + 1_400_000_000
     sync.on_timesync_request(ts1)
-    sync.on_mavlink(attitude(1_500), ts1 + 1_000_000)  # boot clock back by 78.6 s: rebooted
+    # boot clock back by 78.6 s after 1.3 s of silence (it was booting): rebooted
+    sync.on_mavlink(attitude(1_500), ts1 + 1_000_000)
     (event,) = sync.take_events()
     assert event.kind == "autopilot_rebooted" and "80100 to 1500" in event.detail
     assert sync.counts["autopilot_reboots"] == 1

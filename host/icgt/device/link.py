@@ -215,6 +215,11 @@ class DeviceLink:
         return self._connected.is_set()
 
     @property
+    def down_since_ns(self) -> int | None:
+        """When the link went down (host CLOCK_MONOTONIC [ns]); None while it is up."""
+        return None if self._connected.is_set() else self._down_since_ns
+
+    @property
     def decoder_stats(self) -> dict[str, int | None]:
         return self._decoder.stats.as_dict()
 

@@ -205,6 +205,8 @@ class _Feeder:
         except (self._mav_error, ValueError, TypeError, IndexError, KeyError):
             self.counts["mavlink_undecodable"] += 1
             return False
+        if data.get("signed") is True:
+            msg._signed = True  # the recorder checked the signature with the key, which the log does not hold
         if not self.requests_logged and topic == _TIMESYNC_TOPIC and int(msg.tc1) != 0:
             # Logs from before the requests were logged: take a reply's ts1 as a request we sent.
             self.sync.on_timesync_request(int(msg.ts1))

@@ -9,20 +9,29 @@ no I/O, no threads.
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 __all__ = [
     "BOOT_CLOCK_TYPES",
+    "ORIGIN_TOLERANCE_NS",
     "REBOOT_BACKSTEP_MS",
+    "REBOOT_SILENCE_NS",
     "AutopilotPresence",
     "Freshness",
+    "boot_clock_ms",
     "is_autopilot_heartbeat",
 ]
 
-REBOOT_BACKSTEP_MS = 2000  # a boot stamp going back more than this means the autopilot rebooted
+REBOOT_BACKSTEP_MS = 2000  # a boot stamp going back more than this (after a silence) means the autopilot rebooted
+REBOOT_SILENCE_NS = 1_000_000_000  # a rebooting autopilot is silent this long at least (it boots): its stream stopped
+# The boot origin (arrival minus time_boot_ms) of one autopilot moves by its link delay's jitter and the clocks'
+# drift (50 ppm: 0.18 s an hour); a 1 s late echo, a replay or another flight stack is further off.
+ORIGIN_TOLERANCE_NS = 500_000_000
+SEQ_AHEAD_MAX = 64  # packet sequence numbers may jump this far ahead (lost datagrams) within one stream
+SEQ_REORDER_MAX = 8  # ... and arrive this far behind (reordered on the way)
 BOOT_CLOCK_TYPES = frozenset(
     {"SYSTEM_TIME", "ATTITUDE", "ATTITUDE_QUATERNION", "GLOBAL_POSITION_INT", "LOCAL_POSITION_NED"}
 )
@@ -41,13 +50,25 @@ def is_autopilot_heartbeat(msg: Any) -> bool:
     return int(msg.autopilot) != mavlink2.MAV_AUTOPILOT_INVALID and int(msg.type) not in _NOT_AUTOPILOT_TYPES
 
 
+def boot_clock_ms(msg: Any, mtype: str) -> int | None:
+    """The sender's boot clock a message carries [ms]: time_boot_ms, or a TIMESYNC answer's tc1 (its boot clock in
+    ns, ArduPilot and PX4); None for messages without one."""
+    if mtype in BOOT_CLOCK_TYPES:
+        boot = getattr(msg, "time_boot_ms", None)
+        return boot if isinstance(boot, int) else None
+    if mtype == "TIMESYNC" and int(msg.tc1) > 0:
+        return int(msg.tc1) // 1_000_000
+    return None
+
+
 class Freshness(enum.Enum):
     """What one autopilot message says about the autopilot's presence."""
 
     SAME = "same"  # nothing new
     SEEN = "autopilot_seen"  # the first message ever
     BACK = "autopilot_back"  # the first after a silence longer than the timeout
-    REBOOTED = "autopilot_rebooted"  # its boot clock went back
+    REBOOTED = "autopilot_rebooted"  # its boot clock went back, and the stream it replaces had stopped
+    SECOND_SENDER = "autopilot_second_sender"  # the autopilot's ids, but not its stream: not believed
 
 
 @dataclass
@@ -55,7 +76,17 @@ class AutopilotPresence:
     """Tracks one autopilot (system id given, component learnt from its first HEARTBEAT) over its messages.
 
     `observe` returns None for messages from anyone else, else how the message changes what is known
-    (first seen, back after ``timeout_ns`` of silence, rebooted). ``component`` None means: learn it.
+    (first seen, back after ``timeout_ns`` of silence, rebooted, or SECOND_SENDER: a message with the
+    autopilot's ids that is not of its stream, to be counted and otherwise ignored). ``component`` None
+    means: learn it.
+
+    Which stream is the autopilot's: its boot clock's origin (arrival time minus time_boot_ms) stays put
+    within ``ORIGIN_TOLERANCE_NS`` and each message type's time_boot_ms never goes back; its MAVLink packet
+    sequence numbers (one counter per sender) run on, a few lost or reordered. A message that breaks
+    these while the autopilot's stream goes on is another sender (a second flight stack, a router's delayed
+    echo, a replay, an attacker). A reboot is believed only when the boot clock went back by more than
+    ``REBOOT_BACKSTEP_MS`` after the stream it replaces has been silent for ``REBOOT_SILENCE_NS``: what a
+    real reboot gives, and a sender that talks over the running autopilot cannot.
     """
 
     system: int
@@ -64,6 +95,12 @@ class AutopilotPresence:
     last_rx_ns: int | None = None
     last_boot_ms: int | None = None
     detail: str = ""
+    origin_ns: int | None = None  # host time at the autopilot's boot, as its boot clock says (earliest seen)
+    last_seq: int | None = None
+    seq_counts: bool = False  # its sequence numbers have been seen to advance (a sender that keeps them at 0 never)
+    second_sender_messages: int = 0
+    _boot_by_type: dict[str, int] = field(default_factory=dict)
+    _gap_ns: int = 0  # the silence before the messages without a boot clock accepted since the last with one
 
     def observe(self, msg: Any, mtype: str, rx_ns: int) -> Freshness | None:
         if int(msg.get_srcSystem()) != self.system:
@@ -75,15 +112,77 @@ class AutopilotPresence:
             self.component = comp
         if comp != self.component:
             return None
-        fresh = Freshness.SAME
+        boot_ms = boot_clock_ms(msg, mtype)
+        seq = int(msg.get_seq())
         if self.last_rx_ns is None:
-            fresh, self.detail = Freshness.SEEN, f"first {mtype}"
-        elif rx_ns - self.last_rx_ns > self.timeout_ns:
-            fresh, self.detail = Freshness.BACK, f"back after {(rx_ns - self.last_rx_ns) / 1e9:.3f} s"
-        self.last_rx_ns = rx_ns
-        boot_ms = getattr(msg, "time_boot_ms", None) if mtype in BOOT_CLOCK_TYPES else None
-        if isinstance(boot_ms, int):
-            last, self.last_boot_ms = self.last_boot_ms, boot_ms
-            if last is not None and boot_ms + REBOOT_BACKSTEP_MS < last:
-                fresh, self.detail = Freshness.REBOOTED, f"{mtype}.time_boot_ms went from {last} to {boot_ms}"
+            self._accept(mtype, boot_ms, seq, rx_ns)
+            self.detail = f"first {mtype}"
+            return Freshness.SEEN
+        silent_ns = rx_ns - self.last_rx_ns
+        # a reboot's first messages may carry no boot clock (HEARTBEAT): the silence before them still counts
+        refusal = self._refusal(mtype, boot_ms, seq, rx_ns, max(silent_ns, self._gap_ns))
+        if refusal == "rebooted":
+            assert boot_ms is not None and self.last_boot_ms is not None
+            self.detail = (
+                f"{mtype}.time_boot_ms went from {self.last_boot_ms} to {boot_ms} after "
+                f"{silent_ns / 1e9:.3f} s of silence"
+            )
+            self.origin_ns, self.last_seq, self.seq_counts = None, None, False
+            self._boot_by_type.clear()
+            self._accept(mtype, boot_ms, seq, rx_ns)
+            return Freshness.REBOOTED
+        if refusal:
+            self.second_sender_messages += 1
+            self.detail = f"{mtype} (sequence number {seq}): {refusal}"
+            return Freshness.SECOND_SENDER
+        fresh = Freshness.SAME
+        if silent_ns > self.timeout_ns:
+            fresh, self.detail = Freshness.BACK, f"back after {silent_ns / 1e9:.3f} s"
+        self._accept(mtype, boot_ms, seq, rx_ns)
         return fresh
+
+    def _refusal(self, mtype: str, boot_ms: int | None, seq: int, rx_ns: int, silent_ns: int) -> str:
+        """Why a message is not of the autopilot's stream ("" when it is; "rebooted" when it starts a new one)."""
+        if boot_ms is not None and self.origin_ns is not None:
+            origin_ns = rx_ns - boot_ms * 1_000_000
+            went_back = self.last_boot_ms is not None and boot_ms + REBOOT_BACKSTEP_MS < self.last_boot_ms
+            if went_back and silent_ns >= REBOOT_SILENCE_NS:
+                return "rebooted"
+            off_s = (origin_ns - self.origin_ns) / 1e9
+            if abs(origin_ns - self.origin_ns) > ORIGIN_TOLERANCE_NS:
+                return (
+                    f"its boot clock puts the autopilot's boot {off_s:+.3f} s from where the autopilot's own "
+                    "stream, still running, puts it"
+                )
+            last = self._boot_by_type.get(mtype)
+            if last is not None and boot_ms < last:
+                return f"time_boot_ms {boot_ms} is behind the autopilot's last {mtype} ({last}): an echo or a replay"
+            return ""
+        if self.seq_counts and self.last_seq is not None and silent_ns < REBOOT_SILENCE_NS:
+            step = (seq - self.last_seq) & 0xFF
+            if not (1 <= step <= SEQ_AHEAD_MAX or step >= 256 - SEQ_REORDER_MAX):
+                return f"the autopilot's stream is at sequence number {self.last_seq}"
+        return ""
+
+    def _accept(self, mtype: str, boot_ms: int | None, seq: int, rx_ns: int) -> None:
+        if boot_ms is None and self.last_rx_ns is not None:
+            self._gap_ns = max(self._gap_ns, rx_ns - self.last_rx_ns)
+        elif boot_ms is not None:
+            self._gap_ns = 0
+        self.last_rx_ns = rx_ns
+        if self.last_seq is not None:
+            step = (seq - self.last_seq) & 0xFF
+            if 1 <= step <= SEQ_AHEAD_MAX:
+                self.seq_counts = True
+                self.last_seq = seq
+            elif step >= 256 - SEQ_REORDER_MAX and self.seq_counts:
+                pass  # a reordered one: the stream is still further on
+            else:
+                self.last_seq = seq
+        else:
+            self.last_seq = seq
+        if boot_ms is not None:
+            origin_ns = rx_ns - boot_ms * 1_000_000
+            self.origin_ns = origin_ns if self.origin_ns is None else min(self.origin_ns, origin_ns)
+            self.last_boot_ms = boot_ms
+            self._boot_by_type[mtype] = max(boot_ms, self._boot_by_type.get(mtype, boot_ms))

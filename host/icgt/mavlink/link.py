@@ -44,7 +44,7 @@ from typing import Any
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from icgt.mavlink.autopilot_rules import BOOT_CLOCK_TYPES, REBOOT_BACKSTEP_MS, is_autopilot_heartbeat
+from icgt.mavlink.autopilot_rules import AutopilotPresence, Freshness, is_autopilot_heartbeat
 from icgt.mavlink.frames import ForeignFrame, UndecodedBatch, UndecodedFrame, split_foreign
 from icgt.mavlink.link_types import (
     DEFAULT_STREAM_RATES,
@@ -144,7 +144,9 @@ class MavlinkLink:
         self._state = LinkState.WAITING
         self._last_ap_rx_ns = 0
         self._lost_since_ns = 0  # time of the last message before the loss
-        self._last_boot_ms: int | None = None
+        # which stream with the autopilot's ids is the autopilot's, and when it rebooted (the synchroniser's rules)
+        self._presence = AutopilotPresence(self._ap_system, config.autopilot_component)
+        self._second_sender_frames = 0
         # counters
         self._by_type: dict[str, int] = {}
         self._bad_frames = 0
@@ -407,6 +409,7 @@ class MavlinkLink:
                 queue_drops=self._queue_drops,
                 self_echoes=self._self_echoes,
                 same_id_frames=self._same_id_frames,
+                second_sender_frames=self._second_sender_frames,
                 timesync_sent=self._ts_sent,
                 undecoded_frames=self._undecoded,
                 outages=self._outages,
@@ -712,8 +715,11 @@ class MavlinkLink:
             if src[0] == self._ap_system:
                 if self._ap_component is None and mtype == "HEARTBEAT" and is_autopilot_heartbeat(msg):
                     self._ap_component = src[1]
-                if src[1] == self._ap_component and self._ap_component is not None:
-                    events.extend(self._autopilot_message_locked(rec, mtype))
+                fresh = self._presence.observe(msg, mtype, rec.rx_ns)
+                if fresh is Freshness.SECOND_SENDER:
+                    self._second_sender_locked(rec)
+                elif src[1] == self._ap_component and self._ap_component is not None:
+                    events.extend(self._autopilot_message_locked(rec, mtype, fresh is Freshness.REBOOTED))
                     if mtype == "COMMAND_ACK":
                         self._command_ack_locked(msg)
             subs = self._subs
@@ -727,7 +733,21 @@ class MavlinkLink:
                 except Exception:
                     self._count_callback_error(f"subscriber {sub.callback!r} on {mtype}")
 
-    def _autopilot_message_locked(self, rec: MavlinkMessage, mtype: str) -> list[MavlinkEvent]:
+    def _second_sender_locked(self, rec: MavlinkMessage) -> None:
+        """A frame with the autopilot's ids that is not of its stream (AutopilotPresence): counted, said loudly the
+        first time, passed on to the subscribers (the recorder logs it; the synchroniser does not believe it), and
+        neither presence, reboot nor command answer of the autopilot."""
+        self._second_sender_frames += 1
+        if self._second_sender_frames == 1:
+            log.error(
+                "a second sender uses the autopilot's MAVLink id %d:%d (%s): not believed; counted as "
+                "second_sender_frames",
+                rec.src_system,
+                rec.src_component,
+                self._presence.detail,
+            )
+
+    def _autopilot_message_locked(self, rec: MavlinkMessage, mtype: str, rebooted: bool) -> list[MavlinkEvent]:
         events: list[MavlinkEvent] = []
         now = rec.rx_ns
         sysid, compid = rec.src_system, rec.src_component
@@ -745,21 +765,11 @@ class MavlinkLink:
             )
             self._autopilot_fresh_locked(now)
         self._last_ap_rx_ns = now
-        boot_ms = getattr(rec.msg, "time_boot_ms", None) if mtype in BOOT_CLOCK_TYPES else None
-        if isinstance(boot_ms, int):
-            last = self._last_boot_ms
-            self._last_boot_ms = boot_ms
-            if last is not None and boot_ms + REBOOT_BACKSTEP_MS < last:
-                events.append(
-                    MavlinkEvent(
-                        LinkEventKind.AUTOPILOT_REBOOTED,
-                        now,
-                        sysid,
-                        compid,
-                        detail=f"{mtype}.time_boot_ms went from {last} to {boot_ms}",
-                    )
-                )
-                self._autopilot_fresh_locked(now)
+        if rebooted:
+            events.append(
+                MavlinkEvent(LinkEventKind.AUTOPILOT_REBOOTED, now, sysid, compid, detail=self._presence.detail)
+            )
+            self._autopilot_fresh_locked(now)
         return events
 
     def _autopilot_fresh_locked(self, now: int) -> None:

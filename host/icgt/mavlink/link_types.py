@@ -202,6 +202,8 @@ class LinkStats:
     transport_errors: int
     # UDP datagrams the kernel dropped because the socket's receive buffer was full (SO_RXQ_OVFL, Linux)
     kernel_drops: int = 0
+    # frames with the autopilot's ids that are not of its stream (another sender: AutopilotPresence)
+    second_sender_frames: int = 0
     # with a signing key only: frames received with a valid signature, an invalid one, none
     signed_ok: int = 0
     signed_bad: int = 0

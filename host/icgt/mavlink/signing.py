@@ -81,9 +81,10 @@ def frame_has_signature(msg: Any) -> bool:
 class SigningState:
     """Signing for one link: ``attach_input`` on each parser, ``attach_output`` on the packer.
 
-    Input accepts unsigned and badly signed frames (telemetry from an autopilot without the key must still
-    flow); each message says whether its signature was valid (``msg.get_signed()``) and the consumers that
-    need it (the camera's commands) decide. Counters: `counts`."""
+    Input accepts unsigned and badly signed frames (other systems' messages are still logged); each message
+    says whether its signature was valid (``msg.get_signed()``) and the consumers decide: the camera for
+    commands, the synchroniser (``SyncConfig.require_signed_autopilot``) for the autopilot's telemetry.
+    Counters: `counts`."""
 
     def __init__(self, key: bytes, link_id: int = 0) -> None:
         if len(key) != _KEY_BYTES:

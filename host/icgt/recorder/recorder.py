@@ -140,7 +140,11 @@ class Recorder:
         self.live: Any = None  # icgt.recording.live.LiveView while serving
         self._control_path = control_socket
         self._mono_to_utc_ns = time.time_ns() - time.monotonic_ns()  # fixed: log times stay monotonic
-        self.sync_config = SyncConfig(geotag=config.camera, autopilot_system=config.mavlink.system_id)
+        self.sync_config = SyncConfig(
+            geotag=config.camera,
+            autopilot_system=config.mavlink.system_id,
+            require_signed_autopilot=config.mavlink.signing_key_file is not None,
+        )
         self.sync = Synchroniser(self.sync_config)  # fed and polled by the worker thread only
         self.schedule = StepSchedule()  # when the worker steps: every 100 ms, and when a frame is due
         self.views = FoxgloveViews(
@@ -163,6 +167,7 @@ class Recorder:
         self.frames = 0
         self.exposures = 0
         self._capturing = False
+        self._capture_interval_s: float | None = None  # of the capture running (what an outage took)
         self._stop = threading.Event()
         self._worker: threading.Thread | None = None
         self._worker_lock = threading.Lock()  # the worker's step, and stop()'s final drain
@@ -217,6 +222,7 @@ class Recorder:
             self._start_mavlink()
             if self._takeover.adopted:
                 self._capturing = True
+                self._capture_interval_s = self._takeover.interval_s
                 if self.camera is not None:
                     self.camera.set_capturing(True, self._takeover.interval_s)
         except BaseException:
@@ -316,6 +322,32 @@ class Recorder:
         with contextlib.suppress(FileNotFoundError):
             path.unlink()
 
+    def _stop_not_delivered(self, exc: IcgtError) -> None:
+        """The recording ends with capture running on a device it cannot reach: the log's last records say so
+        (event `unreachable_at_end` on /icgt/link_events: the exposures it was known to be taking, interval x
+        outage, are unknown, not 0), and the recorder fails with the stop it could not deliver."""
+        assert self.device is not None
+        now = time.monotonic_ns()
+        down = self.device.down_since_ns
+        outage_ns = 0 if down is None else now - down
+        interval = self._capture_interval_s
+        taken = int(outage_ns / 1e9 / interval) if interval and outage_ns else 0
+        if taken:
+            known = f"about {taken} exposures (every {interval:.3f} s for {outage_ns / 1e9:.1f} s)"
+        else:
+            known = "exposures at an unknown rate"
+        detail = (
+            f"capture stop not delivered ({exc}): the device was unreachable at the end and capturing; {known} "
+            "taken while unreachable are not in this log (unknown, device unreachable at the end); the camera may "
+            "still be shooting"
+        )
+        log.error("%s", detail)
+        self._write_event("device", "unreachable_at_end", detail, now, taken, outage_ns)
+        self.failure = self.failure or StopNotDeliveredError(
+            f"the capture stop could not be delivered to the device ({exc}): it may still be capturing; "
+            f"{known} are not in the log"
+        )
+
     def _stop_control(self) -> None:
         if self.control is not None:
             with contextlib.suppress(Exception):
@@ -331,8 +363,10 @@ class Recorder:
             # The worker steps no more: the device reader reads the stream again (during the wait below)
             self.device.set_pumped(False)
         if self._capturing and self.device is not None:
-            with contextlib.suppress(IcgtError):
+            try:
                 self.stop_capture()
+            except IcgtError as exc:
+                self._stop_not_delivered(exc)
         time.sleep(0.3)  # the last exposures' feedback and telemetry are still on their way
         if self._worker is not None and self._worker is not threading.current_thread():
             self._worker.join(timeout=3.0)
@@ -556,6 +590,7 @@ class Recorder:
         interval_us = cmd.interval_us
         self.device.command(cmd)
         self._capturing = count != 1
+        self._capture_interval_s = interval_us / 1e6
         if self.camera is not None:
             self.camera.set_capturing(self._capturing, interval_us / 1e6)
         log.info("capture started: %s, interval %.3f s, count %d", mode.name.lower(), interval_us / 1e6, count)
@@ -853,6 +888,10 @@ def _wait_clear(flag: threading.Event, timeout_s: float) -> bool:
             return False
         time.sleep(0.02)
     return True
+
+
+class StopNotDeliveredError(IcgtError):
+    """The recording ended with capture running on a device the recorder could not reach to stop it."""
 
 
 class CaptureRequestError(LimitError):

@@ -139,6 +139,7 @@ def mavlink_schema(msg: Any) -> dict[str, Any]:
         "src_component": {"type": "integer"},
         "host_rx_ns": {"type": "integer", "description": "host CLOCK_MONOTONIC at receipt [ns]"},
         "raw": {"type": "string", "contentEncoding": "base64", "description": "the MAVLink frame as received"},
+        "signed": {"type": "boolean", "description": "present (true) when its signature was valid with our key"},
     }
     for name, ftype in zip(msg.fieldnames, msg.fieldtypes, strict=True):
         props[name] = {**_mavlink_json_type(ftype), "description": ftype}
@@ -157,6 +158,8 @@ def mavlink_payload(msg: Any, host_rx_ns: int) -> dict[str, Any]:
         "host_rx_ns": host_rx_ns,
         "raw": base64.b64encode(bytes(msg.get_msgbuf())).decode(),
     }
+    if msg.get_signed():  # checked with the key, which the log does not hold: the recompute reads it here
+        out["signed"] = True
     for name in msg.fieldnames:
         v = getattr(msg, name)
         if isinstance(v, bytes):

@@ -88,6 +88,11 @@ class FlightData:
     note: str | None = None
     track_left_out: dict[str, int] = field(default_factory=dict)
     """Track samples not drawn, by reason (NO_FIX, OUTSIDE)."""
+    sync_counters: dict[str, int] = field(default_factory=dict)
+    """The synchroniser's last counters (/icgt/counters)."""
+    unreachable_at_end: tuple[int, str] | None = None
+    """The recording ended with capture running on an unreachable device: (exposures it was known to be taking,
+    interval x outage, 0 if the rate is unknown; the recorder's account)."""
 
     def t_s(self, host_ns: int) -> float:
         return (host_ns - self.t0_host_ns) / 1e9
@@ -104,13 +109,18 @@ def gather(recording: Any, images: Path | None = None) -> FlightData:
     offset = recording.monotonic_to_utc_offset_ns
     frames: list[FrameRecord] = list(recording.frames())
     topics = recording.topics()
-    wanted = [t for t in (_TRACK, layout.CLOCK_DEVICE, layout.CLOCK_UTC, layout.LINK_EVENTS, _STATUS) if t in topics]
+    wanted = [
+        t
+        for t in (_TRACK, layout.CLOCK_DEVICE, layout.CLOCK_UTC, layout.LINK_EVENTS, _STATUS, layout.COUNTERS)
+        if t in topics
+    ]
     t0: int | None = None
     track: list[tuple[int, float, float, float]] = []
     dev_clock: list[tuple[int, float | None]] = []
     utc_clock: list[tuple[int, float | None, str]] = []
     events: list[dict[str, Any]] = []
     status: dict[str, int] = {}
+    sync_counters: dict[str, int] = {}
     first = next(iter(recording.records()), None)
     if first is not None:
         t0 = _host_ns(first.time_ns, offset)
@@ -131,6 +141,8 @@ def gather(recording: Any, images: Path | None = None) -> FlightData:
             events.append({**d, "_host": d.get("host_ns", host)})
         elif msg.topic == _STATUS:
             status = {k: int(v) for k, v in d.items() if isinstance(v, int)}
+        elif msg.topic == layout.COUNTERS and isinstance(d.get("sync"), dict):
+            sync_counters = {k: int(v) for k, v in d["sync"].items() if isinstance(v, int)}
     if t0 is None:
         raise ReportError(f"{recording.path}: the recording is empty")
     last = t0
@@ -173,6 +185,7 @@ def gather(recording: Any, images: Path | None = None) -> FlightData:
         metadata=recording.metadata,
         topics=topics,
         note=getattr(recording, "note", None),
+        sync_counters=sync_counters,
         track_left_out={k: v for k, v in left_out.items() if v},
     )
     _events(data, events)
@@ -188,7 +201,9 @@ def _events(data: FlightData, events: list[dict[str, Any]]) -> None:
         t = data.t_s(int(e["_host"]))
         link, kind = str(e.get("link", "?")), str(e.get("kind", "?"))
         outage = int(e.get("outage_ns") or 0)
-        if kind in ("sequence_gap", "frames_rejected", "history_lost"):
+        if kind == "unreachable_at_end":
+            data.unreachable_at_end = (int(e.get("count") or 0), str(e.get("detail", kind)))
+        elif kind in ("sequence_gap", "frames_rejected", "history_lost"):
             data.losses.append(Loss(link, t, kind, int(e.get("count") or 0)))
         elif kind in ("disconnected", "autopilot_lost"):
             # autopilot_lost comes after its silence timeout: its outage_ns is the time since the last message
@@ -363,15 +378,35 @@ def summarize(data: FlightData) -> list[tuple[str, str]]:
         rows.append(("footprints", data.footprint_note))
     total_out = sum(o.end_s - o.start_s for o in data.outages)
     rows.append(("link outages", f"{len(data.outages)} ({total_out:.2f} s in all)" if data.outages else "none"))
+    second = data.sync_counters.get("autopilot_second_sender_messages", 0)
+    unsigned = data.sync_counters.get("autopilot_unsigned_messages", 0)
+    if second or unsigned:
+        rows.append(
+            (
+                "messages with the autopilot's id not believed",
+                f"{second} from a second sender, {unsigned} without a valid signature (kept out of clocks and poses)",
+            )
+        )
     lost = sum(x.count for x in data.losses if x.kind == "sequence_gap")
     rejected = sum(x.count for x in data.losses if x.kind == "frames_rejected")
     rows.append(("device messages missing / corrupt frames", f"{lost} / {rejected}"))
     link = data.metadata.get("icgt.device_link", {})
+    if data.unreachable_at_end is not None:
+        taken, _ = data.unreachable_at_end
+        rows.append(
+            (
+                "exposures lost at the end",
+                "unknown, device unreachable at the end"
+                + (f": it was taking about {taken} (capture interval x outage)" if taken else "")
+                + "; the capture stop was not delivered",
+            )
+        )
     if "resend_recovered" in link:
         rows.append(
             (
                 "device frames recovered (RESEND) / lost",
-                f"{link.get('resend_recovered')} recovered; lost: {link.get('lost_exposures')} exposures, "
+                f"{link.get('resend_recovered')} recovered; lost: {link.get('lost_exposures')} exposures"
+                f"{' + unknown (device unreachable at the end)' if data.unreachable_at_end else ''}, "
                 f"{link.get('lost_pps')} PPS, {link.get('lost_samples')} samples, {link.get('lost_other')} "
                 f"status/replies/logs, {link.get('lost_unknown')} unknown",
             )

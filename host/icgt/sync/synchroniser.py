@@ -63,6 +63,9 @@ class SyncConfig:
     # Without TIMESYNC answers the autopilot clock comes from message arrival times; this bounds the
     # link's minimum delay, which one-way timing cannot see (companion UART/UDP: < 1 ms; radios: more).
     one_way_min_delay_allowance_ms: float = 2.0
+    # With MAVLink signing configured: a message with the autopilot's system id whose signature was not valid
+    # (unsigned, another key, replayed) is not believed (counted as autopilot_unsigned_messages).
+    require_signed_autopilot: bool = False
 
     def to_json(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -136,6 +139,8 @@ class Synchroniser:
             "autopilot_reboots": 0,
             "frames": 0,
             "late_pps_skipped": 0,
+            "autopilot_second_sender_messages": 0,
+            "autopilot_unsigned_messages": 0,
         }
         self._timesync_warned = False
         self._utc_source = ""  # the UTC source the last poll used, to log each change with its jump
@@ -207,7 +212,13 @@ class Synchroniser:
             self.telemetry.count_other_source(str(msg.get_type()))
             return None
         mtype = str(msg.get_type())
+        if self.config.require_signed_autopilot and not msg.get_signed():
+            self._unsigned(mtype, rx_ns)
+            return None
         fresh = self.autopilot.observe(msg, mtype, rx_ns)
+        if fresh is Freshness.SECOND_SENDER:
+            self._second_sender(rx_ns)
+            return None
         if fresh is not None and fresh is not Freshness.SAME:
             self.timesync.forget()
             if fresh is Freshness.REBOOTED:
@@ -232,6 +243,30 @@ class Synchroniser:
         if mtype == "SYSTEM_TIME" and fresh is not None:  # the autopilot's own, not a companion's
             self.utc.add_system_time(int(msg.time_unix_usec), int(msg.time_boot_ms))
         return None
+
+    def _unsigned(self, mtype: str, rx_ns: int) -> None:
+        """With signing configured, a message of the autopilot's system without a valid signature: counted, said
+        once, kept out of everything (whoever can reach the port can send it)."""
+        self.counts["autopilot_unsigned_messages"] += 1
+        if self.counts["autopilot_unsigned_messages"] == 1:
+            detail = (
+                f"{mtype} with the autopilot's system id {self.autopilot.system} has no valid signature and signing "
+                "is configured: not believed (counted as autopilot_unsigned_messages; give the autopilot the key)"
+            )
+            log.warning("%s", detail)
+            self.events.append(SyncEvent("autopilot_unsigned", rx_ns, detail))
+
+    def _second_sender(self, rx_ns: int) -> None:
+        """A message with the autopilot's ids that is not of its stream: counted (`autopilot_second_sender_messages`
+        in every counters record), said loudly the first time, and kept out of the clocks, TIMESYNC and poses."""
+        self.counts["autopilot_second_sender_messages"] += 1
+        if self.counts["autopilot_second_sender_messages"] == 1:
+            detail = (
+                f"a second sender uses the autopilot's MAVLink id {self.autopilot.system}:{self.autopilot.component}: "
+                f"{self.autopilot.detail}; its messages are not believed (counted as autopilot_second_sender_messages)"
+            )
+            log.warning("%s", detail)
+            self.events.append(SyncEvent(Freshness.SECOND_SENDER.value, rx_ns, detail))
 
     # ------------------------------------------------------------------ output
     def poll(self, now_ns: int, *, flush: bool = False) -> list[FrameRecord]:

@@ -1,0 +1,178 @@
+"""A second sender with the autopilot's MAVLink ids cannot take its place (issue 30, part 1).
+
+The autopilot (1:1) streams HEARTBEAT at 1 Hz and GLOBAL_POSITION_INT, ATTITUDE at 10 Hz from one pymavlink
+encoder (so its packet sequence numbers run on, as a real one's do). Another sender uses the same ids: spoofed
+positions with a boot clock of 1e9 ms, spoofed heartbeats, a replay of the flight's first seconds, an echo of
+the real stream 1 s late. The synchroniser believes no reboot, keeps the autopilot's clock and poses, counts the
+second sender's messages and says so once; a real reboot (the stream stops, the boot clock starts again) is
+still believed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from icgt.ingest.recompute import _Feeder
+from icgt.mavlink.signing import SigningState, key_from_passphrase
+from icgt.recorder import topics
+from icgt.sync import SyncConfig, Synchroniser
+
+S = 1_000_000_000
+MS = 1_000_000
+BOOT_HOST_NS = 50 * S  # host time at the autopilot's boot
+DELAY_NS = 2 * MS  # link delay
+
+
+class Sender:
+    """One MAVLink sender (its own sequence counter) with ids 1:1 and a boot clock starting at ``boot_host_ns``."""
+
+    def __init__(self, boot_host_ns: int = BOOT_HOST_NS) -> None:
+        self.mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+        self.boot_host_ns = boot_host_ns
+
+    def _frame(self, msg: mavlink2.MAVLink_message) -> bytes:
+        frame = bytes(msg.pack(self.mav))
+        self.mav.seq = (self.mav.seq + 1) % 256  # what MAVLink.send does after packing
+        return frame
+
+    def heartbeat(self) -> bytes:
+        return self._frame(self.mav.heartbeat_encode(2, 3, 0, 0, 4))
+
+    def position(self, boot_ms: int) -> bytes:
+        lat = 473_977_000 + boot_ms // 100  # ~1 m/s north
+        return self._frame(self.mav.global_position_int_encode(boot_ms, lat, 85_455_000, 500_000, 20_000, 100, 0, 0, 0))
+
+    def attitude(self, boot_ms: int) -> bytes:
+        return self._frame(self.mav.attitude_encode(boot_ms, 0.0, 0.0, 0.1, 0.0, 0.0, 0.0))
+
+    def stream(self, start_ms: int, end_ms: int) -> Iterator[tuple[int, bytes]]:
+        """(host receive time, frame) of its flight between two boot times: 10 Hz telemetry, 1 Hz heartbeat."""
+        for boot_ms in range(start_ms, end_ms, 100):
+            rx = self.boot_host_ns + boot_ms * MS + DELAY_NS
+            if boot_ms % 1000 == 0:
+                yield rx, self.heartbeat()
+            yield rx, self.position(boot_ms)
+            yield rx + MS, self.attitude(boot_ms)
+
+
+def feed(sync: Synchroniser, frames: list[tuple[int, bytes]]) -> None:
+    parser = mavlink2.MAVLink(None)
+    for rx, frame in sorted(frames, key=lambda f: f[0]):
+        for msg in parser.parse_buffer(frame) or []:
+            sync.on_mavlink(msg, rx)
+
+
+def assert_only_the_autopilot_was_believed(sync: Synchroniser, real_positions: int, strays: int) -> None:
+    counters = sync.counters()
+    assert counters["autopilot_reboots"] == 0
+    assert counters["autopilot_clock_resets"] == 0
+    assert counters["autopilot_second_sender_messages"] == strays
+    positions = sync.telemetry.fused.samples()
+    assert len(positions) == real_positions  # none of the second sender's samples
+    boot_us = [p.boot_us for p in positions]
+    assert boot_us == sorted(boot_us) and max(boot_us) < 1e9
+    events = sync.take_events()
+    said = [e for e in events if e.kind == "autopilot_second_sender"]
+    assert len(said) == 1, events  # loudly once; the count is in every counters record
+    assert "second sender uses the autopilot's MAVLink id 1:1" in said[0].detail
+    assert [e.kind for e in events if e.kind != "autopilot_second_sender"] == ["autopilot_seen"]
+
+
+def test_spoofed_positions_with_a_far_boot_clock_are_a_second_sender() -> None:
+    real = list(Sender().stream(0, 60_000))
+    stray = Sender()
+    spoofed = []  # 70 positions over 5 s from 20 s on, boot clock near 1e9 ms
+    for k in range(70):
+        rx = BOOT_HOST_NS + 20 * S + k * 71 * MS + 37 * MS
+        spoofed.append((rx, stray.position(1_000_000_000 + 71 * k)))
+    sync = Synchroniser()
+    feed(sync, real + spoofed)
+    assert_only_the_autopilot_was_believed(sync, real_positions=600, strays=70)
+    # the autopilot's clock held: boot time 30 s is 30 s after its boot
+    boot_us = sync.autopilot_time.host_to_autopilot_us(BOOT_HOST_NS + 30 * S + DELAY_NS)
+    assert abs(boot_us - 30_000_000) <= 3_000
+
+
+def test_spoofed_heartbeats_are_a_second_sender() -> None:
+    real = list(Sender().stream(0, 20_000))
+    stray = Sender()
+    spoofed = [(BOOT_HOST_NS + 5 * S + k * 250 * MS + 50 * MS, stray.heartbeat()) for k in range(20)]
+    sync = Synchroniser()
+    feed(sync, real + spoofed)
+    assert_only_the_autopilot_was_believed(sync, real_positions=200, strays=20)
+
+
+def test_a_replay_of_the_flights_first_seconds_is_not_a_reboot() -> None:
+    autopilot = Sender()
+    first = list(autopilot.stream(0, 10_000))  # recorded by someone
+    later = list(autopilot.stream(10_000, 60_000))
+    replay = [(rx + 30 * S, frame) for rx, frame in first]  # played back 30 s later, while the autopilot flies on
+    sync = Synchroniser()
+    feed(sync, first + later + replay)
+    assert_only_the_autopilot_was_believed(sync, real_positions=600, strays=len(replay))
+
+
+def test_an_echo_of_the_real_stream_1_s_late_is_a_second_sender() -> None:
+    real = list(Sender().stream(0, 30_000))
+    echo = [(rx + S, frame) for rx, frame in real if rx > BOOT_HOST_NS + 10 * S]  # a router loop from 10 s on
+    sync = Synchroniser()
+    feed(sync, real + echo)
+    assert_only_the_autopilot_was_believed(sync, real_positions=300, strays=len(echo))
+
+
+def test_a_real_reboot_is_still_believed() -> None:
+    before = Sender()
+    after = Sender(boot_host_ns=BOOT_HOST_NS + 40 * S)  # it stopped at 30 s and booted again at 40 s
+    sync = Synchroniser()
+    feed(sync, list(before.stream(0, 30_000)) + list(after.stream(0, 10_000)))
+    kinds = [e.kind for e in sync.take_events()]
+    assert kinds.count("autopilot_rebooted") == 1 and "autopilot_second_sender" not in kinds
+    assert sync.counters()["autopilot_second_sender_messages"] == 0
+
+
+def test_with_signing_configured_unsigned_messages_with_the_autopilots_id_are_not_believed() -> None:
+    """The autopilot signs with the key; a stray sender without it sends positions and heartbeats as 1:1."""
+    key = key_from_passphrase("bridge inspection")
+    autopilot = Sender()
+    SigningState(key, link_id=1).attach_output(autopilot.mav)
+    real = list(autopilot.stream(0, 20_000))
+    stray = Sender()
+    spoofed = []
+    for k in range(30):
+        rx = BOOT_HOST_NS + 5 * S + k * 100 * MS + 37 * MS
+        spoofed += [(rx, stray.position(5_000 + 100 * k + 37)), (rx + MS, stray.heartbeat())]
+    sync = Synchroniser(SyncConfig(require_signed_autopilot=True))
+    parser = mavlink2.MAVLink(None)
+    SigningState(key).attach_input(parser)
+    for rx, frame in sorted(real + spoofed, key=lambda f: f[0]):
+        for msg in parser.parse_buffer(frame) or []:
+            sync.on_mavlink(msg, rx)
+    counters = sync.counters()
+    assert counters["autopilot_unsigned_messages"] == 60
+    assert counters["autopilot_second_sender_messages"] == 0  # refused before: on its signature alone
+    assert len(sync.telemetry.fused.samples()) == 200
+    said = [e for e in sync.take_events() if e.kind == "autopilot_unsigned"]
+    assert len(said) == 1 and "no valid signature and signing is configured" in said[0].detail
+
+
+def test_the_recompute_believes_what_the_recorder_believed_with_signing() -> None:
+    """The log keeps the recorder's signature verdict ("signed", the key is not in the log); the recompute's
+    synchroniser, fed the logged payloads, takes and refuses the same messages as the live one."""
+    key = key_from_passphrase("bridge inspection")
+    autopilot, stray = Sender(), Sender()
+    SigningState(key, link_id=1).attach_output(autopilot.mav)
+    frames = [*autopilot.stream(0, 5_000), (BOOT_HOST_NS + 2 * S + 37 * MS, stray.position(2_037))]
+    parser = mavlink2.MAVLink(None)
+    SigningState(key).attach_input(parser)
+    live = Synchroniser(SyncConfig(require_signed_autopilot=True))
+    replay = Synchroniser(SyncConfig(require_signed_autopilot=True))
+    feeder = _Feeder(replay, None, 0.0, requests_logged=True)
+    for rx, frame in sorted(frames, key=lambda f: f[0]):
+        for msg in parser.parse_buffer(frame) or []:
+            live.on_mavlink(msg, rx)
+            assert feeder._mavlink(topics.mavlink_topic(msg.get_type()), topics.mavlink_payload(msg, rx))
+    assert live.counters()["autopilot_unsigned_messages"] == 1
+    assert replay.counters() == live.counters()
+    assert replay.telemetry.fused.samples() == live.telemetry.fused.samples()

@@ -40,6 +40,8 @@ _Lon = Annotated[float, Meta(ge=-180.0, le=180.0)]
 
 
 _NEVER_US = 1 << 62  # a backstep no device clock makes
+IMU_SAMPLES_KEPT = 2048  # device IMU samples held (see Geotagger.__init__)
+RANGE_SAMPLES_KEPT = 4096  # device range samples held
 
 
 _RANGE_VALID = int(RangeFlags.VALID)
@@ -176,8 +178,10 @@ class Geotagger:
         self._rules = PositionRules(config.max_gps_gap_s, config.max_accel_m_s2, config.local_drift_m_per_s)
         # Device samples come back late after a gap (RESEND): a sample from before the newest one is
         # inserted in place, never taken for a reboot (the synchroniser clears them on a device reboot).
-        self._imu: TelemetryBuffer[DeviceSample] = TelemetryBuffer(512, reboot_backstep_us=_NEVER_US)
-        self._range: TelemetryBuffer[DeviceSample] = TelemetryBuffer(2048, reboot_backstep_us=_NEVER_US)
+        # Room for what the device resends (its IMU and range rings: 512 and 1024 samples) beside what came
+        # live since the reconnect: 20 s at 100 Hz of IMU, 8 s at 500 Hz of range (about 1.5 MiB in all).
+        self._imu: TelemetryBuffer[DeviceSample] = TelemetryBuffer(IMU_SAMPLES_KEPT, reboot_backstep_us=_NEVER_US)
+        self._range: TelemetryBuffer[DeviceSample] = TelemetryBuffer(RANGE_SAMPLES_KEPT, reboot_backstep_us=_NEVER_US)
         self._pending: deque[_Pending] = deque()
         self._lock = threading.Lock()
         self._seq = 0

@@ -31,7 +31,7 @@ def _teensy41_sizes() -> tuple[int, int]:
 
 
 def test_the_ring_sizes_are_the_firmwares() -> None:
-    assert (EVENT_SLOTS, KIND_ENTRIES) == _teensy41_sizes()
+    assert _teensy41_sizes() == (EVENT_SLOTS, KIND_ENTRIES)
 
 
 def test_at_5_fps_the_event_ring_decides_11_minutes() -> None:

@@ -460,7 +460,7 @@ def test_an_exposure_resent_minutes_late_is_posed_from_the_telemetry_that_came_o
             )
         if k % 5 == 0:
             sync.on_mavlink(attitude(boot_ms), rx)
-        fused = wire(AUTOPILOT, lambda m, b=boot_ms, d=k: m.global_position_int_encode(b, lat + d, lon, alt, 0, 0, 0, 0, 0))
+        fused = wire(AUTOPILOT, lambda m, b=boot_ms, d=k: m.global_position_int_encode(b, lat + d, lon, alt, *[0] * 5))
         sync.on_mavlink(fused, rx)
     # made at host t + 60 s (device 110 s), received 5 minutes later
     mid_us = (t + 60 * S - DEV_BOOT_HOST_NS) // 1000

@@ -476,3 +476,27 @@ def test_an_exposure_resent_minutes_late_is_posed_from_the_telemetry_that_came_o
     assert frame.lat_deg == pytest.approx((lat + 2950) * 1e-7, abs=2e-7)
     assert "no_attitude" not in frame.flags
     assert sync.telemetry.retention_s is not None and sync.telemetry.retention_s >= 10 * 60
+
+
+def test_a_resent_exposure_without_its_range_samples_says_the_outage_took_them() -> None:
+    """Issue 27, outage accounting: a resent frame is flagged `resent`; when none of the range samples around
+    its mid-exposure came back it is `range_samples_lost` (the outage's doing), and a live frame without a
+    valid return is only `range_invalid`."""
+    from icgt.protocol.messages import Range
+
+    sync = Synchroniser()
+    t = 100 * S
+    sync.on_device(Hello(protocol_version=1, t_us=(t - DEV_BOOT_HOST_NS) // 1000), t)
+    sync_device_clock(sync, t)
+    dev0 = (t - DEV_BOOT_HOST_NS) // 1000
+    for k in range(20):  # ranges 5 s .. 7 s after t, no valid return
+        d = dev0 + 5_000_000 + k * 100_000
+        sync.on_device(Range(acq_start_t_us=d, read_t_us=d + 500, distance_cm=0, flags=0), t + 5 * S)
+    sync.on_device(Exposure(image_index=3, trigger_t_us=dev0 + 6_000_000), t + 6 * S)
+    sync.on_device(Exposure(image_index=1, trigger_t_us=dev0 + 1_000_000), t + 7 * S, retransmitted=True)
+    sync.on_device(Exposure(image_index=2, trigger_t_us=dev0 + 6_500_000), t + 7 * S, retransmitted=True)
+    frames = {f.image_index: f for f in sync.poll(t + 8 * S, flush=True)}
+    assert "resent" not in frames[3].flags and "range_invalid" in frames[3].flags
+    assert "range_samples_lost" not in frames[3].flags
+    assert {"resent", "range_invalid", "range_samples_lost"} <= set(frames[1].flags)
+    assert "resent" in frames[2].flags and "range_samples_lost" not in frames[2].flags  # samples, none valid

@@ -200,8 +200,9 @@ class Geotagger:
         self._imu.clear()
         self._range.clear()
 
-    def add_exposure(self, exposure: Exposure, rx_host_ns: int) -> None:
-        flags: list[str] = []
+    def add_exposure(self, exposure: Exposure, rx_host_ns: int, *, resent: bool = False) -> None:
+        """An exposure as received; ``resent``: it came through RESEND (the frame carried the retransmit flag)."""
+        flags: list[str] = [FrameFlag.RESENT.value] if resent else []
         if exposure.feedback_start_t_us and exposure.feedback_end_t_us:
             start = exposure.feedback_start_t_us
             mid = start + (exposure.feedback_end_t_us - start) // 2
@@ -295,6 +296,8 @@ class Geotagger:
         ap_unc = self._ap.uncertainty_us(mid_boot) if mid_boot is not None else None
 
         pos = self._position(mid_boot, flags)
+        if pos is None and mid_boot is not None and self._telemetry_expired(mid_boot):
+            flags.append(FrameFlag.TELEMETRY_EXPIRED.value)
         att = self._attitude(mid_boot, flags)
         imu = self._imu_at(p.mid_device_us)
         rng = self._range_at(p.mid_device_us, flags)
@@ -455,6 +458,11 @@ class Geotagger:
         f = (mid_boot - before.boot_us) / (after.boot_us - before.boot_us)
         return (np.asarray(q_slerp(before.q_wxyz, after.q_wxyz, f), dtype=float),)
 
+    def _telemetry_expired(self, mid_boot: float) -> bool:
+        """The fused positions from around ``mid_boot`` were held once and have been trimmed since."""
+        oldest = self._tm.fused.oldest()
+        return self._tm.fused.expired > 0 and oldest is not None and oldest.boot_us > mid_boot
+
     def _imu_at(self, mid_device_us: int) -> DeviceSample | None:
         before, after = self._imu.bracket(mid_device_us)
         if before is None or after is None:
@@ -473,6 +481,8 @@ class Geotagger:
         b = next((window[i] for i in range(i_after, len(window)) if _valid_range(window[i])), None)
         if a is None and b is None:
             flags.append(FrameFlag.RANGE_INVALID.value)
+            if not window and FrameFlag.RESENT.value in flags:
+                flags.append(FrameFlag.RANGE_SAMPLES_LOST.value)  # not one sample came back from around mid
             return None
         if a is not None and b is not None:
             ra, rb = a.msg.distance_cm / 100.0, b.msg.distance_cm / 100.0  # type: ignore[union-attr]

@@ -35,13 +35,14 @@ from icgt.clocks.device_clock import DeviceClockFilter
 from icgt.geotag.geotagger import GeotagConfig
 from icgt.geotag.record import FrameRecord
 from icgt.ingest.reader import IngestError, LogMessage, Recording, read
-from icgt.protocol.messages import Message
+from icgt.protocol.messages import FrameFlags, Message
 from icgt.recording import layout
 from icgt.sync import SyncConfig, Synchroniser
 
 __all__ = ["RecomputeResult", "recompute", "recording_config", "recording_sync_config"]
 
 MAX_LOOKAHEAD_S = 2.0
+_RETRANSMIT = int(FrameFlags.RETRANSMIT)
 _TIMESYNC_TOPIC = layout.mavlink_topic("TIMESYNC")
 
 M = TypeVar("M", bound=Message)
@@ -154,7 +155,8 @@ class _Feeder:
             if cls is None:
                 return
             rx = int(data.get("host_rx_ns", 0))
-            self.sync.on_device(device_message(cls, data), rx)
+            retransmitted = bool(int(data.get("frame_flags", 0)) & _RETRANSMIT)
+            self.sync.on_device(device_message(cls, data), rx, retransmitted=retransmitted)
         elif topic == layout.CLOCK_DEVICE_EXCHANGES:
             rx = int(data["host_rx_ns"])
             self.sync.on_exchange(int(data["host_tx_ns"]), int(data["device_rx_us"]), int(data["device_tx_us"]), rx)

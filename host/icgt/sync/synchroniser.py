@@ -150,8 +150,10 @@ class Synchroniser:
         self._last_pps_t_us = 0  # the latest PPS edge fed to the PPS fit
 
     # ------------------------------------------------------------------ inputs
-    def on_device(self, msg: Message, rx_ns: int) -> None:
-        """A device message as received (any type; those that carry nothing for the frames are kept as state)."""
+    def on_device(self, msg: Message, rx_ns: int, *, retransmitted: bool = False) -> None:
+        """A device message as received (any type; those that carry nothing for the frames are kept as state).
+
+        ``retransmitted``: its frame carried the retransmit flag (RESEND brought it back after an outage)."""
         if isinstance(msg, Imu):
             self.geotagger.add_imu(msg)
             self._device_t_us = max(self._device_t_us, msg.read_end_t_us)
@@ -160,7 +162,7 @@ class Synchroniser:
             self._device_t_us = max(self._device_t_us, msg.acq_start_t_us)
         elif isinstance(msg, Exposure):
             self.counts["exposures"] += 1
-            self.geotagger.add_exposure(msg, rx_ns)
+            self.geotagger.add_exposure(msg, rx_ns, resent=retransmitted)
             self._device_t_us = max(self._device_t_us, msg.trigger_t_us, msg.feedback_start_t_us)
         elif isinstance(msg, Pps):
             if msg.t_us < self._last_pps_t_us:

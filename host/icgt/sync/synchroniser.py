@@ -321,6 +321,8 @@ class Synchroniser:
             "utc_steps": self.utc.steps,
             "autopilot_clock_resets": self.autopilot_time.resets,
             "pending_frames": self.pending_frames,
+            "telemetry_retention_s": round(self.telemetry.retention_s or 0),
+            "telemetry_bytes": self.telemetry.memory_bytes(),
             **{f"telemetry_{k}": v for k, v in self.telemetry.counts().items()},
         }
 

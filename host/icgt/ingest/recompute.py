@@ -12,8 +12,12 @@ fresh synchroniser the same inputs in the same order (the file's), built with th
   recorded; with another lever arm, mounting or camera they differ only by it. Exposures the
   recorder never wrote a frame for (it was killed) are emitted at the end.
 * ``lookahead_s=T`` polls only T seconds of host time behind the inputs, so the clock filters and
-  the pose buffers also use what came after each exposure (at most 2 s: the IMU buffer holds about
-  5 s at 100 Hz).
+  the pose buffers also use what came after each exposure (at most 2 s, well inside what the device
+  sample buffers hold: 20 s of IMU at 100 Hz).
+
+The autopilot telemetry is kept as long as live (`SyncConfig.telemetry_retention_s`: the device's
+history horizon, `icgt.device.history`): no exposure can come back later than that, so every frame the
+log's telemetry brackets is posed, in the recompute as it was live.
 
 Logs written before ``emitted_host_ns`` existed are polled at each frame's mid-exposure plus the
 geotagger's wait, which reproduces them only approximately.

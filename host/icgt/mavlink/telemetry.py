@@ -482,9 +482,9 @@ class TelemetryStore:
     ``retention_s * MAX_STREAM_RATE_HZ`` samples per stream. Memory: about `SAMPLE_BYTES` per sample
     held, so at most ``6 * MAX_STREAM_RATE_HZ * retention_s * SAMPLE_BYTES * 1.25`` (the 1.25: trimmed
     entries are deleted in batches); `memory_bytes` estimates what is held now. At 5 fps (retention 742.7 s)
-    that bound is 340 MiB (all six streams at 100 Hz); at the simulator's rates (fused 50 Hz, GPS 5 Hz,
-    attitude, quaternion and local position 10 Hz, SYSTEM_TIME 1 Hz) 39 MiB, 37 MiB measured after a 5 min
-    unplug (benchmarks/resend_faults.py --outage 300). With ``retention_s``
+    that bound is 340 MiB (all six streams at 100 Hz); measured in the simulated flights (about 180 samples/s
+    in all, the rates the recorder asks for): 37 MiB after a 5.5 min flight, 86 MiB after a 12.5 min one, the
+    retention reached (benchmarks/resend_faults.py --outage 300 720). With ``retention_s``
     None, ``capacity`` samples per stream and no time bound (the buffers' own default).
     """
 

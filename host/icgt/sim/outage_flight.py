@@ -48,7 +48,7 @@ class FrameScore:
     in_outage: bool  # made while the cable was out
     resent: bool  # the frame came back through RESEND
     geotag_error_m: float | None  # None: no position
-    range_error_m: float | None  # None: no range (or no true range: then `true_range`  is False)
+    range_error_m: float | None  # None: no range (or no true range: then `true_range` is False)
     true_range: bool  # the simulator's LiDAR had a return at mid-exposure
     flags: tuple[str, ...]
 

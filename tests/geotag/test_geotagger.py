@@ -821,3 +821,23 @@ def test_frames_come_out_in_exposure_order_numbered_from_one_and_flush_drops_not
     rig.expose(start_us=START_US + 5 * 200_000, index=15)
     (last,) = rig.poll(0, flush=True)
     assert last.frame_seq == 6
+
+
+def test_a_frame_whose_telemetry_left_the_buffers_says_so() -> None:
+    """Issue 27 outage accounting: no pose because the telemetry around mid-exposure had been trimmed
+    (the frame came later than telemetry is kept) is `telemetry_expired`, not only `no_fix`."""
+    rig = Rig()
+    rig.store.retain(1.0)  # 1 s of boot clock
+    fix_then_bracket(rig)
+    for boot_ms in range(13_200, 15_200, 100):  # 2 s more: the samples around mid (13045 ms) expire
+        rig.pose(boot_ms)
+    valid_range_at_mid(rig)
+    rig.expose()
+    frame = rig.one()
+    assert {"no_fix", "telemetry_expired"} <= set(frame.flags)
+    live = Rig()
+    fix_then_bracket(live)
+    live.store.retain(1.0)
+    valid_range_at_mid(live)
+    live.expose()
+    assert "telemetry_expired" not in live.one().flags

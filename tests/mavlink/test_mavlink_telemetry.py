@@ -330,3 +330,30 @@ def test_mixed_mavlink1_and_mavlink2_on_one_link():
     finally:
         ap.close()
         link.stop()
+
+
+def test_a_buffer_with_a_retention_keeps_samples_by_time_and_counts_what_expires() -> None:
+    buf: TelemetryBuffer[S] = TelemetryBuffer(1000, retain_us=1_000_000)
+    for k in range(50):  # 5 s at 10 Hz
+        buf.push(S(k * 100_000, float(k)))
+    kept = buf.samples()
+    assert kept[0].boot_us == 3_900_000 and kept[-1].boot_us == 4_900_000 and len(kept) == 11
+    assert buf.expired == 39
+    buf.push(S(3_000_000, -1.0))  # a late sample older than the retention: not taken, counted
+    assert buf.expired == 40 and len(buf) == 11
+    buf.push(S(4_450_000, -2.0))  # a late one within it is inserted
+    before, after = buf.bracket(4_450_000)
+    assert before is after and before is not None and before.tag == -2.0
+
+
+def test_a_store_keeps_a_50_hz_stream_for_its_retention() -> None:
+    from icgt.mavlink.telemetry import SAMPLE_BYTES
+
+    store = TelemetryStore(retention_s=700.0)
+    assert store.fused.capacity >= 700 * 100 and store.fused.retain_us == 700_000_000
+    for k in range(720 * 50):  # 12 min at 50 Hz
+        store.fused.push(S(k * 20_000, float(k)))  # type: ignore[arg-type]
+    oldest = store.fused.oldest()
+    assert oldest is not None and oldest.boot_us == 719_980_000 - 700_000_000  # the newest minus 700 s
+    assert store.memory_bytes() == store.fused.held * SAMPLE_BYTES
+    assert store.fused.held <= 700 * 50 * 1.25 + 1

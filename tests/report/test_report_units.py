@@ -111,3 +111,27 @@ def test_the_summary_says_how_many_messages_with_the_autopilots_id_were_not_beli
     assert rows["messages with the autopilot's id not believed"].startswith(
         "70 from a second sender, 3 without a valid signature"
     )
+
+
+def test_the_summary_counts_frames_without_pose_or_range_because_of_an_outage() -> None:
+    from icgt.geotag.record import FrameRecord
+    from icgt.report.summary import summarize
+
+    def frame(seq: int, flags: list[str]) -> FrameRecord:
+        return FrameRecord(
+            frame_seq=seq, image_index=seq, camera_id=0, device_flags=0, trigger_device_us=seq,
+            start_device_us=seq, mid_device_us=seq, duration_us=0, mid_host_ns=seq, mid_host_uncertainty_ns=0,
+            time_source="none", flags=flags, position_source="none", fix_type=0, pose_gap_before_ms=0.0,
+            pose_gap_after_ms=0.0,
+        )  # fmt: skip
+
+    data = _data()
+    data.frames = [
+        frame(1, []),
+        frame(2, ["resent"]),
+        frame(3, ["resent", "range_invalid", "range_samples_lost"]),
+        frame(4, ["resent", "no_fix", "telemetry_expired", "range_invalid", "range_samples_lost"]),
+        frame(5, ["resent", "range_invalid"]),  # the LiDAR saw nothing: not the outage's doing
+    ]
+    rows = dict(summarize(data))
+    assert rows["frames resent after an outage"] == "4; because of the outage 1 without a pose, 2 without a range"

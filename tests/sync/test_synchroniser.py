@@ -435,3 +435,69 @@ def test_late_resent_events_and_samples_are_taken_in_place() -> None:
     assert all(f.range_m is not None and abs(f.range_m - 2.5) < 0.05 for f in late), "the resent ranges were used"
     (live,) = [f for f in frames if f.image_index == 20]
     assert live.range_m is not None and abs(live.range_m - 3.0) < 0.05, "the live ranges were kept"
+
+
+def test_an_exposure_resent_minutes_late_is_posed_from_the_telemetry_that_came_on_time() -> None:
+    """Issue 27: the autopilot's telemetry (50 Hz fused position) is kept for the device's history horizon,
+    so an exposure that comes back through RESEND 5 minutes after it was made is posed and not `no_fix`."""
+    sync = Synchroniser()
+    t = 100 * S
+    sync.on_device(Hello(protocol_version=1, t_us=(t - DEV_BOOT_HOST_NS) // 1000), t)
+    sync_device_clock(sync, t)
+    sync.on_mavlink(heartbeat(), t)
+    for k in range(5):
+        ts1 = t + k * 200_000_000 + 7_000
+        sync.on_timesync_request(ts1)
+        assert answer(sync, ts1, ts1 + 600_000) is not None
+    lat, lon, alt = 473_977_419, 85_455_938, 488_000
+    boot0_ms = (t - AP_BOOT_HOST_NS) // 1_000_000  # 80 s
+    for k in range(360 * 50):  # 6 minutes of 50 Hz fused position, 5 Hz GPS, 10 Hz attitude
+        boot_ms = boot0_ms + 1_000 + k * 20
+        rx = AP_BOOT_HOST_NS + boot_ms * 1_000_000 + 5_000_000
+        if k % 10 == 0:
+            gps_us = boot_ms * 1000
+            sync.on_mavlink(
+                wire(AUTOPILOT, lambda m, u=gps_us: m.gps_raw_int_encode(u, 6, lat, lon, alt, 80, 120, 0, 0, 12)), rx
+            )
+        if k % 5 == 0:
+            sync.on_mavlink(attitude(boot_ms), rx)
+        fused = wire(AUTOPILOT, lambda m, b=boot_ms, d=k: m.global_position_int_encode(b, lat + d, lon, alt, *[0] * 5))
+        sync.on_mavlink(fused, rx)
+    # made at host t + 60 s (device 110 s), received 5 minutes later
+    mid_us = (t + 60 * S - DEV_BOOT_HOST_NS) // 1000
+    exposure = Exposure(
+        image_index=1, trigger_t_us=mid_us - 50_000, feedback_start_t_us=mid_us - 5_000,
+        feedback_end_t_us=mid_us + 5_000, duration_us=10_000,
+    )  # fmt: skip
+    sync.on_device(exposure, t + 361 * S)
+    (frame,) = sync.poll(t + 362 * S)
+    assert "no_fix" not in frame.flags and frame.position_source == "rtk_fixed"
+    assert frame.lat_deg is not None
+    # 59 s after the first sample at 1e-7 deg a sample: 2950 steps north, within a sample
+    assert frame.lat_deg == pytest.approx((lat + 2950) * 1e-7, abs=2e-7)
+    assert "no_attitude" not in frame.flags
+    assert sync.telemetry.retention_s is not None and sync.telemetry.retention_s >= 10 * 60
+
+
+def test_a_resent_exposure_without_its_range_samples_says_the_outage_took_them() -> None:
+    """Issue 27, outage accounting: a resent frame is flagged `resent`; when none of the range samples around
+    its mid-exposure came back it is `range_samples_lost` (the outage's doing), and a live frame without a
+    valid return is only `range_invalid`."""
+    from icgt.protocol.messages import Range
+
+    sync = Synchroniser()
+    t = 100 * S
+    sync.on_device(Hello(protocol_version=1, t_us=(t - DEV_BOOT_HOST_NS) // 1000), t)
+    sync_device_clock(sync, t)
+    dev0 = (t - DEV_BOOT_HOST_NS) // 1000
+    for k in range(20):  # ranges 5 s .. 7 s after t, no valid return
+        d = dev0 + 5_000_000 + k * 100_000
+        sync.on_device(Range(acq_start_t_us=d, read_t_us=d + 500, distance_cm=0, flags=0), t + 5 * S)
+    sync.on_device(Exposure(image_index=3, trigger_t_us=dev0 + 6_000_000), t + 6 * S)
+    sync.on_device(Exposure(image_index=1, trigger_t_us=dev0 + 1_000_000), t + 7 * S, retransmitted=True)
+    sync.on_device(Exposure(image_index=2, trigger_t_us=dev0 + 6_500_000), t + 7 * S, retransmitted=True)
+    frames = {f.image_index: f for f in sync.poll(t + 8 * S, flush=True)}
+    assert "resent" not in frames[3].flags and "range_invalid" in frames[3].flags
+    assert "range_samples_lost" not in frames[3].flags
+    assert {"resent", "range_invalid", "range_samples_lost"} <= set(frames[1].flags)
+    assert "resent" in frames[2].flags and "range_samples_lost" not in frames[2].flags  # samples, none valid

@@ -40,6 +40,8 @@ _Lon = Annotated[float, Meta(ge=-180.0, le=180.0)]
 
 
 _NEVER_US = 1 << 62  # a backstep no device clock makes
+IMU_SAMPLES_KEPT = 2048  # device IMU samples held (see Geotagger.__init__)
+RANGE_SAMPLES_KEPT = 4096  # device range samples held
 
 
 _RANGE_VALID = int(RangeFlags.VALID)
@@ -209,8 +211,10 @@ class Geotagger:
         self._lever_m = float(np.linalg.norm(np.asarray(config.lever_arm_body_m, dtype=float)))
         # Device samples come back late after a gap (RESEND): a sample from before the newest one is
         # inserted in place, never taken for a reboot (the synchroniser clears them on a device reboot).
-        self._imu: TelemetryBuffer[DeviceSample] = TelemetryBuffer(512, reboot_backstep_us=_NEVER_US)
-        self._range: TelemetryBuffer[DeviceSample] = TelemetryBuffer(2048, reboot_backstep_us=_NEVER_US)
+        # Room for what the device resends (its IMU and range rings: 512 and 1024 samples) beside what came
+        # live since the reconnect: 20 s at 100 Hz of IMU, 8 s at 500 Hz of range (about 1.5 MiB in all).
+        self._imu: TelemetryBuffer[DeviceSample] = TelemetryBuffer(IMU_SAMPLES_KEPT, reboot_backstep_us=_NEVER_US)
+        self._range: TelemetryBuffer[DeviceSample] = TelemetryBuffer(RANGE_SAMPLES_KEPT, reboot_backstep_us=_NEVER_US)
         self._pending: deque[_Pending] = deque()
         self._lock = threading.Lock()
         self._seq = 0
@@ -229,8 +233,9 @@ class Geotagger:
         self._imu.clear()
         self._range.clear()
 
-    def add_exposure(self, exposure: Exposure, rx_host_ns: int) -> None:
-        flags: list[str] = []
+    def add_exposure(self, exposure: Exposure, rx_host_ns: int, *, resent: bool = False) -> None:
+        """An exposure as received; ``resent``: it came through RESEND (the frame carried the retransmit flag)."""
+        flags: list[str] = [FrameFlag.RESENT.value] if resent else []
         if exposure.feedback_start_t_us and exposure.feedback_end_t_us:
             start = exposure.feedback_start_t_us
             mid = start + (exposure.feedback_end_t_us - start) // 2
@@ -325,6 +330,8 @@ class Geotagger:
 
         placed = self._position(mid_boot, flags)
         pos = placed if isinstance(placed, PositionEstimate) else None
+        if placed is None and mid_boot is not None and self._telemetry_expired(mid_boot):
+            flags.append(FrameFlag.TELEMETRY_EXPIRED.value)
         att = self._attitude(mid_boot, flags)
         imu = self._imu_at(p.mid_device_us)
         rng = self._range_at(p.mid_device_us, flags)
@@ -514,6 +521,11 @@ class Geotagger:
         lever = self._lever_m * turn
         return pos.horizontal_m + timing_h + lever, pos.vertical_m + timing_v + lever
 
+    def _telemetry_expired(self, mid_boot: float) -> bool:
+        """The fused positions from around ``mid_boot`` were held once and have been trimmed since."""
+        oldest = self._tm.fused.oldest()
+        return self._tm.fused.expired > 0 and oldest is not None and oldest.boot_us > mid_boot
+
     def _imu_at(self, mid_device_us: int) -> DeviceSample | None:
         before, after = self._imu.bracket(mid_device_us)
         if before is None or after is None:
@@ -532,6 +544,8 @@ class Geotagger:
         b = next((window[i] for i in range(i_after, len(window)) if _valid_range(window[i])), None)
         if a is None and b is None:
             flags.append(FrameFlag.RANGE_INVALID.value)
+            if not window and FrameFlag.RESENT.value in flags:
+                flags.append(FrameFlag.RANGE_SAMPLES_LOST.value)  # not one sample came back from around mid
             return None
         if a is not None and b is not None:
             ra, rb = a.msg.distance_cm / 100.0, b.msg.distance_cm / 100.0  # type: ignore[union-attr]

@@ -45,6 +45,16 @@ class FrameFlag(enum.StrEnum):
     UNSOLICITED = "unsolicited"  # an exposure nobody triggered (manual shot)
     IMU_UNCALIBRATED = "imu_uncalibrated"
     NO_POSE = "no_pose"  # the samples around it are too far apart to bound a position: none given (see the gaps)
+    # Outages (issue 27): what a frame lacks because the device link was down when it was made.
+    RESENT = "resent"  # the exposure came back through RESEND (the device resent it after an outage)
+    RANGE_SAMPLES_LOST = "range_samples_lost"  # resent, and no range sample near mid came back: none to range it
+    TELEMETRY_EXPIRED = "telemetry_expired"  # no pose: the telemetry around mid had left the host's buffers
+
+
+OUTAGE_NO_POSE = FrameFlag.TELEMETRY_EXPIRED
+"""The flag of a frame without a pose because of an outage (it came back later than telemetry is kept)."""
+OUTAGE_NO_RANGE = FrameFlag.RANGE_SAMPLES_LOST
+"""The flag of a frame without a range because of an outage (the device no longer held its range samples)."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -12,8 +12,12 @@ fresh synchroniser the same inputs in the same order (the file's), built with th
   recorded; with another lever arm, mounting or camera they differ only by it. Exposures the
   recorder never wrote a frame for (it was killed) are emitted at the end.
 * ``lookahead_s=T`` polls only T seconds of host time behind the inputs, so the clock filters and
-  the pose buffers also use what came after each exposure (at most 2 s: the IMU buffer holds about
-  5 s at 100 Hz).
+  the pose buffers also use what came after each exposure (at most 2 s, well inside what the device
+  sample buffers hold: 20 s of IMU at 100 Hz).
+
+The autopilot telemetry is kept as long as live (`SyncConfig.telemetry_retention_s`: the device's
+history horizon, `icgt.device.history`): no exposure can come back later than that, so every frame the
+log's telemetry brackets is posed, in the recompute as it was live.
 
 Logs written before ``emitted_host_ns`` existed are polled at each frame's mid-exposure plus the
 geotagger's wait, which reproduces them only approximately.
@@ -35,13 +39,14 @@ from icgt.clocks.device_clock import DeviceClockFilter
 from icgt.geotag.geotagger import GeotagConfig
 from icgt.geotag.record import FrameRecord
 from icgt.ingest.reader import IngestError, LogMessage, Recording, read
-from icgt.protocol.messages import Message
+from icgt.protocol.messages import FrameFlags, Message
 from icgt.recording import layout
 from icgt.sync import SyncConfig, Synchroniser
 
 __all__ = ["RecomputeResult", "recompute", "recording_config", "recording_sync_config"]
 
 MAX_LOOKAHEAD_S = 2.0
+_RETRANSMIT = int(FrameFlags.RETRANSMIT)
 _TIMESYNC_TOPIC = layout.mavlink_topic("TIMESYNC")
 
 M = TypeVar("M", bound=Message)
@@ -154,7 +159,8 @@ class _Feeder:
             if cls is None:
                 return
             rx = int(data.get("host_rx_ns", 0))
-            self.sync.on_device(device_message(cls, data), rx)
+            retransmitted = bool(int(data.get("frame_flags", 0)) & _RETRANSMIT)
+            self.sync.on_device(device_message(cls, data), rx, retransmitted=retransmitted)
         elif topic == layout.CLOCK_DEVICE_EXCHANGES:
             rx = int(data["host_rx_ns"])
             self.sync.on_exchange(int(data["host_tx_ns"]), int(data["device_rx_us"]), int(data["device_tx_us"]), rx)

@@ -58,6 +58,7 @@ from icgt.protocol import Received as DeviceReceived
 from icgt.protocol.messages import (
     Board,
     ClockSource,
+    FrameFlags,
     Hello,
     Limit,
     Log,
@@ -79,6 +80,7 @@ from icgt.sync import SyncConfig, Synchroniser
 
 log = logging.getLogger("icgt.recorder")
 
+_RETRANSMIT = int(FrameFlags.RETRANSMIT)
 _DEVICE_LOG_LEVELS: dict[int, int] = {
     LogLevel.DEBUG: logging.DEBUG,
     LogLevel.INFO: logging.INFO,
@@ -541,7 +543,7 @@ class Recorder:
         if self.mcap is not None:
             data = topics.device_payload_json(msg, received.seq, received.flags, host_rx_ns)
             self._write_encoded(topics.device_topic(msg.NAME), data, host_rx_ns)
-        self.sync.on_device(msg, host_rx_ns)
+        self.sync.on_device(msg, host_rx_ns, retransmitted=bool(received.flags & _RETRANSMIT))
         if msg.NAME == "EXPOSURE":
             self.exposures += 1
         elif isinstance(msg, Log):

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from icgt.errors import IcgtError
-from icgt.geotag.record import FrameFlag, FrameRecord
+from icgt.geotag.record import OUTAGE_NO_POSE, OUTAGE_NO_RANGE, FrameFlag, FrameRecord
 from icgt.recording import layout
 
 _TRACK = layout.mavlink_topic("GLOBAL_POSITION_INT")
@@ -349,6 +349,15 @@ def summarize(data: FlightData) -> list[tuple[str, str]]:
     rows.append(("UTC sources", _counts(Counter(r.time_source for r in frames))))
     rows.append(("flags", _counts(flags) if flags else "none"))
     rows.append(("position telemetry gaps", _pose_gaps_text(frames)))
+    resent = flags.get(FrameFlag.RESENT.value, 0)
+    if resent:
+        rows.append(
+            (
+                "frames resent after an outage",
+                f"{resent}; because of the outage {flags.get(OUTAGE_NO_POSE.value, 0)} without a pose, "
+                f"{flags.get(OUTAGE_NO_RANGE.value, 0)} without a range",
+            )
+        )
     for label, values, unit in (
         ("horizontal accuracy", [r.h_acc_m for r in frames if r.h_acc_m is not None], "m"),
         ("vertical accuracy", [r.v_acc_m for r in frames if r.v_acc_m is not None], "m"),

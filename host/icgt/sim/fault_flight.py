@@ -62,6 +62,7 @@ class FlightResult:
     reported_lost_exposures: int  # the recordings' own count (device RESEND_LOST, as logged)
     recordings: list[Path]
     link_summary: dict[str, str] = field(default_factory=dict)
+    truth: list[dict[str, Any]] = field(default_factory=list)  # the simulator's exposure truth (triggered ones)
 
 
 def _exposures_in(path: Path) -> tuple[dict[int, bool], int, dict[str, str]]:
@@ -192,4 +193,5 @@ def fly_faults(sc: Scenario, plan: FaultPlan, out: Path) -> FlightResult:
         reported_lost_exposures=lost,
         recordings=recordings,
         link_summary=summary,
+        truth=truth,
     )

@@ -11,8 +11,9 @@ gives back every frame exactly.
 
 Inputs (each is a logged record; the topic is in `icgt.recording.layout`):
 
-* `on_device(message, rx_ns)`: a device message (EXPOSURE, IMU, RANGE, PPS, HELLO, STATUS) and the host
-  receive time [ns, CLOCK_MONOTONIC];
+* `on_device(message, rx_ns)`: a device message (EXPOSURE, IMU, RANGE, PPS, HELLO, STATUS, DEVICE_STATE)
+  and the host receive time [ns, CLOCK_MONOTONIC]; DEVICE_STATE's rates set how long the autopilot
+  telemetry is kept (the device's history horizon: a frame resent that late still finds its pose);
 * `on_exchange(...)`: one device TIME_SYNC exchange;
 * `on_timesync_request(ts1_ns)`: a MAVLink TIMESYNC request this host sent;
 * `on_mavlink(msg, rx_ns)`: any MAVLink message received (pymavlink object), stamped on arrival;
@@ -35,13 +36,14 @@ from icgt.clocks.autopilot_clock import AutopilotClockFilter, UtcMapper
 from icgt.clocks.autopilot_time import AutopilotTimeMap
 from icgt.clocks.device_clock import DeviceClockFilter, ExchangeStatus, PpsUtcMapper
 from icgt.clocks.one_way import OneWayClock
+from icgt.device.history import NOMINAL_RATES, DeviceRates, telemetry_retention_s
 from icgt.geotag.clock_views import AutopilotClockView, UtcView, add_pps_edge
 from icgt.geotag.geotagger import GeotagConfig, Geotagger
 from icgt.geotag.record import FrameRecord
 from icgt.mavlink.autopilot_rules import BOOT_CLOCK_TYPES, AutopilotPresence, Freshness
 from icgt.mavlink.link import MavlinkMessage
 from icgt.mavlink.telemetry import TelemetryStore
-from icgt.protocol.messages import Exposure, Hello, Imu, Message, Pps, Range, Status
+from icgt.protocol.messages import DeviceState, Exposure, Hello, Imu, Message, Pps, Range, Status
 from icgt.sync.timesync import TimesyncPairing, TimesyncReply
 
 __all__ = ["SyncConfig", "SyncEvent", "Synchroniser"]
@@ -66,6 +68,9 @@ class SyncConfig:
     # With MAVLink signing configured: a message with the autopilot's system id whose signature was not valid
     # (unsigned, another key, replayed) is not believed (counted as autopilot_unsigned_messages).
     require_signed_autopilot: bool = False
+    # How long autopilot telemetry is kept [s of boot clock]; None: the device's history horizon at the rates
+    # its DEVICE_STATE reports (at 5 fps before it has, `icgt.device.history`). Never shorter than that.
+    telemetry_retention_s: float | None = None
 
     def to_json(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -113,7 +118,9 @@ class Synchroniser:
         # MAV_COMP_ID_AUTOPILOT1 until the autopilot's HEARTBEAT (or the configuration) names its component.
         self._default_component = cfg.autopilot_component if cfg.autopilot_component is not None else 1
         self.telemetry = TelemetryStore(
-            autopilot_system=cfg.autopilot_system, autopilot_component=self._default_component
+            autopilot_system=cfg.autopilot_system,
+            autopilot_component=self._default_component,
+            retention_s=max(cfg.telemetry_retention_s or 0.0, telemetry_retention_s(NOMINAL_RATES)),
         )
         self.autopilot = AutopilotPresence(
             cfg.autopilot_system, cfg.autopilot_component, int(cfg.autopilot_timeout_s * 1e9)
@@ -148,8 +155,10 @@ class Synchroniser:
         self._last_pps_t_us = 0  # the latest PPS edge fed to the PPS fit
 
     # ------------------------------------------------------------------ inputs
-    def on_device(self, msg: Message, rx_ns: int) -> None:
-        """A device message as received (any type; those that carry nothing for the frames are kept as state)."""
+    def on_device(self, msg: Message, rx_ns: int, *, retransmitted: bool = False) -> None:
+        """A device message as received (any type; those that carry nothing for the frames are kept as state).
+
+        ``retransmitted``: its frame carried the retransmit flag (RESEND brought it back after an outage)."""
         if isinstance(msg, Imu):
             self.geotagger.add_imu(msg)
             self._device_t_us = max(self._device_t_us, msg.read_end_t_us)
@@ -158,7 +167,7 @@ class Synchroniser:
             self._device_t_us = max(self._device_t_us, msg.acq_start_t_us)
         elif isinstance(msg, Exposure):
             self.counts["exposures"] += 1
-            self.geotagger.add_exposure(msg, rx_ns)
+            self.geotagger.add_exposure(msg, rx_ns, resent=retransmitted)
             self._device_t_us = max(self._device_t_us, msg.trigger_t_us, msg.feedback_start_t_us)
         elif isinstance(msg, Pps):
             if msg.t_us < self._last_pps_t_us:
@@ -169,6 +178,8 @@ class Synchroniser:
             self._last_pps_t_us = msg.t_us
             add_pps_edge(self.pps, self.utc, self.device_clock, msg.t_us, msg.pps_count)
             self._device_t_us = max(self._device_t_us, msg.t_us)
+        elif isinstance(msg, DeviceState):
+            self._retain_for(msg)
         elif isinstance(msg, Status):
             self.last_status = msg
             self._device_t_us = max(self._device_t_us, msg.t_us)
@@ -183,6 +194,17 @@ class Synchroniser:
                 self._event("device_rebooted", rx_ns, f"HELLO at device time {msg.t_us} us: its clock restarted")
             self.hello = msg
             self._device_t_us = msg.t_us
+
+    def _retain_for(self, state: DeviceState) -> None:
+        """Keep telemetry for the device's history horizon at the rates it reports (only ever longer)."""
+        rates = DeviceRates(
+            exposure_hz=1e6 / state.interval_us if state.interval_us else 0.0,
+            imu_hz=float(state.imu_rate_hz),
+            range_hz=float(state.range_rate_hz),
+        )
+        retention = telemetry_retention_s(rates)
+        if retention > (self.telemetry.retention_s or 0.0):
+            self.telemetry.retain(retention)
 
     def on_exchange(self, host_tx_ns: int, device_rx_us: int, device_tx_us: int, host_rx_ns: int) -> ExchangeStatus:
         """One device TIME_SYNC exchange (host send/receive [ns], device receive/transmit [us])."""
@@ -334,6 +356,8 @@ class Synchroniser:
             "utc_steps": self.utc.steps,
             "autopilot_clock_resets": self.autopilot_time.resets,
             "pending_frames": self.pending_frames,
+            "telemetry_retention_s": round(self.telemetry.retention_s or 0),
+            "telemetry_bytes": self.telemetry.memory_bytes(),
             **{f"telemetry_{k}": v for k, v in self.telemetry.counts().items()},
         }
 

@@ -28,7 +28,8 @@ __all__ = [
 REBOOT_BACKSTEP_MS = 2000  # a boot stamp going back more than this (after a silence) means the autopilot rebooted
 REBOOT_SILENCE_NS = 1_000_000_000  # a rebooting autopilot is silent this long at least (it boots): its stream stopped
 # The boot origin (arrival minus time_boot_ms) of one autopilot moves by its link delay's jitter and the clocks'
-# drift (50 ppm: 0.18 s an hour); a 1 s late echo, a replay or another flight stack is further off.
+# drift (50 ppm: 0.18 s an hour, which the origin follows, see `_accept`); a 1 s late echo, a replay or another
+# flight stack is further off. A message the link holds back by more than this is not believed (counted).
 ORIGIN_TOLERANCE_NS = 500_000_000
 SEQ_AHEAD_MAX = 64  # packet sequence numbers may jump this far ahead (lost datagrams) within one stream
 SEQ_REORDER_MAX = 8  # ... and arrive this far behind (reordered on the way)
@@ -183,6 +184,12 @@ class AutopilotPresence:
             self.last_seq = seq
         if boot_ms is not None:
             origin_ns = rx_ns - boot_ms * 1_000_000
-            self.origin_ns = origin_ns if self.origin_ns is None else min(self.origin_ns, origin_ns)
+            # the earliest origin seen (the least delayed message), but never further than half the tolerance
+            # behind the latest accepted one: the origin follows the clocks' drift over hours
+            self.origin_ns = (
+                origin_ns
+                if self.origin_ns is None
+                else max(min(self.origin_ns, origin_ns), origin_ns - ORIGIN_TOLERANCE_NS // 2)
+            )
             self.last_boot_ms = boot_ms
             self._boot_by_type[mtype] = max(boot_ms, self._boot_by_type.get(mtype, boot_ms))

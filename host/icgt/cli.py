@@ -37,9 +37,10 @@ def _until_signal(stop: Callable[[], None]) -> threading.Event:
 
 
 def _port(option: str, value: int) -> int:
-    """A UDP/TCP port given on the command line, refused (IcgtError naming the option) outside 1..65535."""
-    if not 1 <= value <= 65535:
-        raise IcgtError(f"{option} {value}: a port is a number from 1 to 65535")
+    """A UDP/TCP port given on the command line, refused (IcgtError naming the option) outside 0..65535
+    (0: any free port, the one taken is printed)."""
+    if not 0 <= value <= 65535:
+        raise IcgtError(f"{option} {value}: a port is a number from 1 to 65535 (or 0: any free port)")
     return value
 
 

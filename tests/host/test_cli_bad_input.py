@@ -38,7 +38,7 @@ def test_a_binary_scenario_file_is_named_not_a_unicode_traceback(
         ("--duration", "nan", "--duration nan: a duration is"),
         ("--duration", "inf", "--duration inf: a duration is"),
         ("--mavlink-port", "99999", "--mavlink-port 99999: a port is a number from 1 to 65535"),
-        ("--mavlink-port", "0", "--mavlink-port 0: a port is"),
+        ("--mavlink-port", "65536", "--mavlink-port 65536: a port is"),
         ("--gcs-port", "-5", "--gcs-port -5: a port is"),
     ],
 )

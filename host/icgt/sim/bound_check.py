@@ -310,10 +310,7 @@ def _score(flight: FlightTruth, gaps: list[Gap], plan: TelemetryPlan, f: FrameRe
         h_bound_m=f.horizontal_error_bound_m if f.horizontal_error_bound_m is not None else math.nan,
         v_bound_m=f.vertical_error_bound_m if f.vertical_error_bound_m is not None else math.nan,
         att_bound_deg=f.attitude_error_bound_deg if f.attitude_error_bound_deg is not None else math.nan,
-        h_acc_m=RADIAL_NAIVE * plan.h_acc_m,
+        h_acc_m=plan.h_acc_m,
         v_acc_m=plan.v_acc_m,
         enu_m=(f.east_m, f.north_m, f.up_m) if placed else None,  # type: ignore[arg-type]
     )
-
-
-RADIAL_NAIVE = 1.0  # the peer's bound: h_acc / v_acc as the receiver reports them, unscaled

@@ -77,16 +77,27 @@ class Verdict:
         )
 
 
+def _windows(card: Card) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The timed images' EXIF windows sorted by start: (starts, ends, the greatest end so far)."""
+    ti = card.timed
+    order = np.argsort(card.c[ti], kind="stable")
+    lo, hi = card.c[ti][order], (card.c[ti] + card.r[ti])[order]
+    return lo, hi, (np.maximum.accumulate(hi) if len(hi) else hi)
+
+
+def _fits(lo: FloatArray, hi_run: FloatArray, p: FloatArray, tol: float) -> np.ndarray:
+    """Which exposures (camera-clock times p) fit an image: some window [lo - tol, hi + tol] contains them, i.e.
+    the last window starting at or before p + tol ends at or after p - tol (hi_run: the greatest end so far)."""
+    idx = np.searchsorted(lo, p + tol, side="right") - 1
+    out: np.ndarray = (idx >= 0) & (hi_run[np.maximum(idx, 0)] >= p - tol)
+    return out
+
+
 def contradictions(card: Card, fr: Frames, offsets: FloatArray, slack_s: float) -> tuple[FloatArray, FloatArray]:
     """Per offset (drift 0, windows padded by `slack_s` more): contradictions and exposures paired."""
-    ti = card.timed
-    lo_all = card.c[ti]
-    hi_all = card.c[ti] + card.r[ti]
-    order = np.argsort(lo_all, kind="stable")
-    lo, hi = lo_all[order], hi_all[order]
+    lo, hi, hi_run = _windows(card)
     xe = fr.x[fr.eligible]
     tol = float(np.median(fr.tol)) + slack_s
-    hi_run = np.maximum.accumulate(hi) if len(hi) else hi
     out_c = np.zeros(len(offsets))
     out_n = np.zeros(len(offsets))
     if not len(xe) or not len(lo):
@@ -94,10 +105,7 @@ def contradictions(card: Card, fr: Frames, offsets: FloatArray, slack_s: float) 
     for k in range(0, len(offsets), 64):
         o = offsets[k : k + 64, None]
         p = xe[None, :] + o  # the exposures on the camera's clock
-        # an exposure fits an image if some window [lo - tol, hi + tol] contains it: the last window starting
-        # at or before p + tol must end at or after p - tol (hi_run: the greatest end so far)
-        idx = np.searchsorted(lo, p + tol, side="right") - 1
-        fits = (idx >= 0) & (hi_run[np.maximum(idx, 0)] >= p - tol)
+        fits = _fits(lo, hi_run, p, tol)
         missing = (~fits).sum(axis=1)
         # an image fits an exposure if one lies in its window; only images inside the log's span count
         pe = np.sort(p, axis=1)
@@ -119,18 +127,17 @@ LOWER_BOUND_SAMPLE = 2000
 
 
 def missing_lower_bound(card: Card, fr: Frames, offsets: FloatArray, slack_s: float, stride: int) -> FloatArray:
-    """Per offset, the exposures among every ``stride``-th one that fit no image: never more than the offset's
-    contradictions over all exposures (a subset misses no more than the whole), at a fraction of their cost."""
-    ti = card.timed
-    lo_all = card.c[ti]
-    order = np.argsort(lo_all, kind="stable")
-    lo = lo_all[order]
-    hi_run = np.maximum.accumulate((card.c[ti] + card.r[ti])[order]) if len(lo) else lo
+    """Per offset, the exposures among every ``stride``-th one that fit no image (`_fits`, as `contradictions`
+    counts them): never more than the offset's contradictions over all exposures, at a fraction of their cost."""
+    lo, _, hi_run = _windows(card)
     xe = fr.x[fr.eligible][::stride]
     tol = float(np.median(fr.tol)) + slack_s
     out = np.zeros(len(offsets))
     if not len(xe) or not len(lo):
         return out
+    for k in range(0, len(offsets), 256):
+        out[k : k + 256] = (~_fits(lo, hi_run, xe[None, :] + offsets[k : k + 256, None], tol)).sum(axis=1)
+    return out
     for k in range(0, len(offsets), 256):
         p = xe[None, :] + offsets[k : k + 256, None]
         idx = np.searchsorted(lo, p + tol, side="right") - 1

@@ -93,9 +93,38 @@ def _fits(lo: FloatArray, hi_run: FloatArray, p: FloatArray, tol: float) -> np.n
     return out
 
 
+def _groups(card: Card) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The timed images' distinct EXIF windows sorted by start: (starts, ends, images in each). With 1 s times a
+    window is one second of the camera clock and holds every image taken in it."""
+    ti = card.timed
+    keys = np.stack([card.c[ti], card.r[ti]], axis=1)
+    uniq, counts = np.unique(keys, axis=0, return_counts=True)  # sorted by start, then length
+    return uniq[:, 0].copy(), (uniq[:, 0] + uniq[:, 1]).copy(), counts.astype(np.float64)
+
+
+def _count_between(p: FloatArray, rows: FloatArray, a: FloatArray, b: FloatArray) -> np.ndarray:
+    """Per row of `p` (each row sorted; `rows` lifts row r by r * lift above the row before, so that one search
+    serves them all), how many values lie in each closed interval [a, b] (none where a > b)."""
+    flat = (p + rows).ravel()
+    first = np.searchsorted(flat, (a[None, :] + rows).ravel(), side="left")
+    last = np.searchsorted(flat, (b[None, :] + rows).ravel(), side="right")
+    out: np.ndarray = np.clip(last - first, 0, None).reshape(p.shape[0], len(a))
+    return out
+
+
 def contradictions(card: Card, fr: Frames, offsets: FloatArray, slack_s: float) -> tuple[FloatArray, FloatArray]:
-    """Per offset (drift 0, windows padded by `slack_s` more): contradictions and exposures paired."""
-    lo, hi, hi_run = _windows(card)
+    """Per offset (drift 0, windows padded by `slack_s` more): contradictions and exposures paired.
+
+    Counted one-to-one over blocks of EXIF windows: neighbouring windows (the images of one EXIF time share
+    one) are joined into a block where an exposure may belong to either, and each block must hold as many
+    images as exposures. So coarse times still see a missing image: with 1 s times and two shots a second
+    the neighbours' windows cover a missed shot's exposure, but the block then holds one exposure more than
+    images. Every exposure whose own image window holds it lies in that window's block (the windows between
+    its block and its image's are joined by it), so at the true offset a block is short only by real misses."""
+    lo, _hi, hi_run = _windows(card)
+    g_lo, g_hi, g_n = _groups(card)
+    g_run = np.maximum.accumulate(g_hi)
+    n_g = len(g_lo)
     xe = fr.x[fr.eligible]
     tol = float(np.median(fr.tol)) + slack_s
     out_c = np.zeros(len(offsets))
@@ -103,21 +132,35 @@ def contradictions(card: Card, fr: Frames, offsets: FloatArray, slack_s: float) 
     if not len(xe) or not len(lo):
         return out_c + float(len(xe)), out_n
     for k in range(0, len(offsets), 64):
-        o = offsets[k : k + 64, None]
-        p = xe[None, :] + o  # the exposures on the camera's clock
+        p = xe[None, :] + offsets[k : k + 64, None]  # the exposures on the camera's clock (sorted: x is)
+        n_rows = p.shape[0]
         fits = _fits(lo, hi_run, p, tol)
         missing = (~fits).sum(axis=1)
-        # an image fits an exposure if one lies in its window; only images inside the log's span count
-        pe = np.sort(p, axis=1)
-        # one search for all rows: row r's values and queries lifted by r * lift keep the rows apart
-        lift = float(max(pe.max(), hi.max()) - min(pe.min(), lo.min()) + 4.0 * tol + 1.0)
-        rows = np.arange(pe.shape[0])[:, None] * lift
-        flat = np.searchsorted((pe + rows).ravel(), ((lo[None, :] - tol) + rows).ravel(), side="left")
-        a = flat.reshape(pe.shape[0], len(lo)) - np.arange(pe.shape[0])[:, None] * pe.shape[1]
-        has = (a < pe.shape[1]) & (np.take_along_axis(pe, np.minimum(a, pe.shape[1] - 1), axis=1) <= hi[None, :] + tol)
-        inside = (hi[None, :] >= pe[:, :1] - tol) & (lo[None, :] <= pe[:, -1:] + tol)
-        extra = (inside & ~has).sum(axis=1) * EXTRA_IMAGE_WEIGHT
-        out_c[k : k + 64] = missing + extra
+        lift = float(max(p.max(), g_hi.max()) - min(p.min(), g_lo.min()) + 4.0 * tol + 1.0)
+        rows = np.arange(n_rows, dtype=np.float64)[:, None] * lift
+        # Window g and g + 1 are one block when an exposure lies where both (g's run of ends) may hold it
+        soft = _count_between(p, rows, g_lo[1:] - tol, g_run[:-1] + tol) > 0
+        block = np.concatenate([np.zeros((n_rows, 1), dtype=np.int64), np.cumsum(~soft, axis=1)], axis=1)
+        gid = (block + np.arange(n_rows)[:, None] * n_g).ravel()  # blocks numbered across the rows
+        g_of = np.clip(np.searchsorted(g_lo, p + tol, side="right") - 1, 0, None)  # an exposure's block's window
+        e_gid = np.take_along_axis(block, g_of, axis=1) + np.arange(n_rows)[:, None] * n_g
+        exposures = np.bincount(e_gid[fits], minlength=n_rows * n_g)
+        images = np.bincount(gid, weights=np.tile(g_n, n_rows), minlength=n_rows * n_g)
+        starts = np.flatnonzero(np.r_[True, gid[1:] != gid[:-1]])
+        b_lo = np.full(n_rows * n_g, np.inf)
+        b_hi = np.full(n_rows * n_g, -np.inf)
+        b_lo[gid[starts]] = np.tile(g_lo, n_rows)[starts]
+        b_hi[gid[starts]] = np.maximum.reduceat(np.tile(g_hi, n_rows), starts)
+        first = np.repeat(p[:, 0], n_g)
+        last = np.repeat(p[:, -1], n_g)
+        # Images without exposures: a block wholly inside the log's span counts each image beyond its exposures;
+        # one reaching past the span's ends only when it has no exposure at all (the rest of it may lie before
+        # the recording started or after it ended). Exposures beyond the images count anywhere.
+        within = (b_lo - tol >= first) & (b_hi + tol <= last)
+        touching = (b_hi >= first - tol) & (b_lo <= last + tol)
+        short = np.where(within, np.clip(images - exposures, 0, None), np.where(exposures == 0, images, 0.0))
+        per_block = short * touching * EXTRA_IMAGE_WEIGHT + np.clip(exposures - images, 0, None)
+        out_c[k : k + 64] = missing + per_block.reshape(n_rows, n_g).sum(axis=1)
         out_n[k : k + 64] = fits.sum(axis=1)
     return out_c, out_n
 
@@ -137,11 +180,6 @@ def missing_lower_bound(card: Card, fr: Frames, offsets: FloatArray, slack_s: fl
         return out
     for k in range(0, len(offsets), 256):
         out[k : k + 256] = (~_fits(lo, hi_run, xe[None, :] + offsets[k : k + 256, None], tol)).sum(axis=1)
-    return out
-    for k in range(0, len(offsets), 256):
-        p = xe[None, :] + offsets[k : k + 256, None]
-        idx = np.searchsorted(lo, p + tol, side="right") - 1
-        out[k : k + 256] = (~((idx >= 0) & (hi_run[np.maximum(idx, 0)] >= p - tol))).sum(axis=1)
     return out
 
 

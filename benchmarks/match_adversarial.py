@@ -208,7 +208,8 @@ def main() -> int:
     )
     print(
         f"logs of >= {MIN_LOG_EXPOSURES} exposures whose card singles out the camera clock: {total.goal_right} of "
-        f"{total.goal_allowed} pairs made ({100.0 * total.goal_right / max(1, total.goal_allowed):.1f} %; goal >= 95 %); "
+        f"{total.goal_allowed} pairs made ({100.0 * total.goal_right / max(1, total.goal_allowed):.1f} %; "
+        "goal >= 95 %); "
         f"{total.tied_cards} cards tied ({total.tied_allowed} pairs: a shift of the whole log is contradicted no more "
         "than the truth, so no matcher can tell)"
     )

@@ -109,3 +109,11 @@ def composed_card(
     card = images + extra if other_after else extra + images
     truth.update({t.path: None for t in extra})
     return kept, card, truth
+
+
+def interleaving_step(params: dict[str, Any], shift_s: float, other_after: bool) -> float:
+    """The `composed_card` clock step that sets the other flight's camera times to the middle of this flight's (a
+    camera clock set back between flights, or forward before them): the card's times then interleave."""
+    own = [t.time_s for t in capture(params)[1] if t.time_s is not None]
+    half = (max(own) - min(own)) / 2.0 if own else 0.0
+    return -(shift_s + half) if other_after else shift_s + half

@@ -122,6 +122,39 @@ def test_an_echo_of_the_real_stream_1_s_late_is_a_second_sender() -> None:
     assert_only_the_autopilot_was_believed(sync, real_positions=300, strays=len(echo))
 
 
+def test_a_link_that_holds_the_stream_back_is_still_the_autopilot() -> None:
+    """A radio's buffer (or a congested router) delays every message by 1.5 s for 10 s, in order, then sends the
+    backlog in a burst: the stream's origin moves late by the delay, its boot clock and sequence numbers run on,
+    and all of it is believed (before, anything more than 0.5 s late was refused as a second sender, and one
+    late message moved the origin so that the next timely ones were)."""
+    real = list(Sender().stream(0, 30_000))
+    held, last_rx = [], 0
+    for rx, frame in real:
+        late = 1500 * MS if BOOT_HOST_NS + 10 * S <= rx < BOOT_HOST_NS + 20 * S else 0
+        last_rx = max(rx + late, last_rx + 10_000)  # in order: nothing overtakes what the buffer holds
+        held.append((last_rx, frame))
+    sync = Synchroniser()
+    feed(sync, held)
+    assert sync.counters()["autopilot_second_sender_messages"] == 0
+    assert len(sync.telemetry.fused.samples()) == 300
+
+
+def test_flight_stacks_booted_2_s_before_or_after_the_autopilot_are_second_senders() -> None:
+    """Another flight stack on the network with the autopilot's id, booted 2 s earlier (its boot clock ahead: its
+    origin earlier than any message of the autopilot can be) or 2 s later (its clock behind the autopilot's)."""
+    for boot_shift in (-2 * S, 2 * S):
+        real = list(Sender().stream(0, 30_000))
+        other = Sender(boot_host_ns=BOOT_HOST_NS + boot_shift)
+        # its positions from 10 s to 15 s of the autopilot's flight (host time), at 10 Hz
+        stray = [
+            (BOOT_HOST_NS + t_ms * MS + 37 * MS, other.position(t_ms - boot_shift // MS))
+            for t_ms in range(10_000, 15_000, 100)
+        ]
+        sync = Synchroniser()
+        feed(sync, real + stray)
+        assert_only_the_autopilot_was_believed(sync, real_positions=300, strays=len(stray))
+
+
 def test_a_real_reboot_is_still_believed() -> None:
     before = Sender()
     after = Sender(boot_host_ns=BOOT_HOST_NS + 40 * S)  # it stopped at 30 s and booted again at 40 s

@@ -9,6 +9,7 @@ no I/O, no threads.
 from __future__ import annotations
 
 import enum
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -16,7 +17,9 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 __all__ = [
     "BOOT_CLOCK_TYPES",
+    "LATE_TOLERANCE_NS",
     "ORIGIN_TOLERANCE_NS",
+    "ORIGIN_WINDOW_NS",
     "REBOOT_BACKSTEP_MS",
     "REBOOT_SILENCE_NS",
     "AutopilotPresence",
@@ -27,10 +30,15 @@ __all__ = [
 
 REBOOT_BACKSTEP_MS = 2000  # a boot stamp going back more than this (after a silence) means the autopilot rebooted
 REBOOT_SILENCE_NS = 1_000_000_000  # a rebooting autopilot is silent this long at least (it boots): its stream stopped
-# The boot origin (arrival minus time_boot_ms) of one autopilot moves by its link delay's jitter and the clocks'
-# drift (50 ppm: 0.18 s an hour, which the origin follows, see `_accept`); a 1 s late echo, a replay or another
-# flight stack is further off. A message the link holds back by more than this is not believed (counted).
+# The boot origin (arrival minus time_boot_ms) of one autopilot is its boot plus the link's delay: the least
+# delayed of the last ORIGIN_WINDOW_NS is the reference (it follows the clocks' drift, 50 ppm: 0.18 s an hour).
+# No message of the stream is less delayed than that by more than ORIGIN_TOLERANCE_NS: an earlier origin is
+# another sender (booted earlier, or a spoofed clock). A message held back (a radio's buffer, a busy host)
+# is later by its delay: believed up to LATE_TOLERANCE_NS, since what tells a late echo or a replay apart is
+# its time_boot_ms and sequence number running behind the stream's (`_refusal`), not its delay.
 ORIGIN_TOLERANCE_NS = 500_000_000
+LATE_TOLERANCE_NS = 5_000_000_000
+ORIGIN_WINDOW_NS = 60_000_000_000
 SEQ_AHEAD_MAX = 64  # packet sequence numbers may jump this far ahead (lost datagrams) within one stream
 SEQ_REORDER_MAX = 8  # ... and arrive this far behind (reordered on the way)
 BOOT_CLOCK_TYPES = frozenset(
@@ -101,6 +109,7 @@ class AutopilotPresence:
     seq_counts: bool = False  # its sequence numbers have been seen to advance (a sender that keeps them at 0 never)
     second_sender_messages: int = 0
     _boot_by_type: dict[str, int] = field(default_factory=dict)
+    _origins: deque[tuple[int, int]] = field(default_factory=deque)  # (rx, origin) rising: the window's minimum
     _gap_ns: int = 0  # the silence before the messages without a boot clock accepted since the last with one
 
     def observe(self, msg: Any, mtype: str, rx_ns: int) -> Freshness | None:
@@ -130,6 +139,7 @@ class AutopilotPresence:
             )
             self.origin_ns, self.last_seq, self.seq_counts = None, None, False
             self._boot_by_type.clear()
+            self._origins.clear()
             self._accept(mtype, boot_ms, seq, rx_ns)
             return Freshness.REBOOTED
         if refusal:
@@ -150,7 +160,7 @@ class AutopilotPresence:
             if went_back and silent_ns >= REBOOT_SILENCE_NS:
                 return "rebooted"
             off_s = (origin_ns - self.origin_ns) / 1e9
-            if abs(origin_ns - self.origin_ns) > ORIGIN_TOLERANCE_NS:
+            if origin_ns < self.origin_ns - ORIGIN_TOLERANCE_NS or origin_ns > self.origin_ns + LATE_TOLERANCE_NS:
                 return (
                     f"its boot clock puts the autopilot's boot {off_s:+.3f} s from where the autopilot's own "
                     "stream, still running, puts it"
@@ -158,12 +168,23 @@ class AutopilotPresence:
             last = self._boot_by_type.get(mtype)
             if last is not None and boot_ms < last:
                 return f"time_boot_ms {boot_ms} is behind the autopilot's last {mtype} ({last}): an echo or a replay"
+            if last is not None and boot_ms == last and not self._seq_runs_on(seq, reordered=False):
+                return (
+                    f"a repeat of the autopilot's last {mtype} (time_boot_ms {boot_ms}) with sequence number {seq} "
+                    f"where its stream is at {self.last_seq}: an echo"
+                )
             return ""
-        if self.seq_counts and self.last_seq is not None and silent_ns < REBOOT_SILENCE_NS:
-            step = (seq - self.last_seq) & 0xFF
-            if not (1 <= step <= SEQ_AHEAD_MAX or step >= 256 - SEQ_REORDER_MAX):
-                return f"the autopilot's stream is at sequence number {self.last_seq}"
+        if silent_ns < REBOOT_SILENCE_NS and not self._seq_runs_on(seq):
+            return f"the autopilot's stream is at sequence number {self.last_seq}"
         return ""
+
+    def _seq_runs_on(self, seq: int, reordered: bool = True) -> bool:
+        """Could `seq` be the stream's next packet (a few lost, or with `reordered` a few behind)? Always, until
+        its numbers count. (A message repeating its type's last time_boot_ms is new only if it is ahead.)"""
+        if not self.seq_counts or self.last_seq is None:
+            return True
+        step = (seq - self.last_seq) & 0xFF
+        return 1 <= step <= SEQ_AHEAD_MAX or (reordered and step >= 256 - SEQ_REORDER_MAX)
 
     def _accept(self, mtype: str, boot_ms: int | None, seq: int, rx_ns: int) -> None:
         if boot_ms is None and self.last_rx_ns is not None:
@@ -184,12 +205,14 @@ class AutopilotPresence:
             self.last_seq = seq
         if boot_ms is not None:
             origin_ns = rx_ns - boot_ms * 1_000_000
-            # the earliest origin seen (the least delayed message), but never further than half the tolerance
-            # behind the latest accepted one: the origin follows the clocks' drift over hours
-            self.origin_ns = (
-                origin_ns
-                if self.origin_ns is None
-                else max(min(self.origin_ns, origin_ns), origin_ns - ORIGIN_TOLERANCE_NS // 2)
-            )
+            # the least delayed message of the last ORIGIN_WINDOW_NS (a rising deque: its head is the minimum),
+            # so that the origin follows the clocks' drift over hours and one late message does not move it
+            window = self._origins
+            while window and window[-1][1] >= origin_ns:
+                window.pop()
+            window.append((rx_ns, origin_ns))
+            while len(window) > 1 and window[0][0] < rx_ns - ORIGIN_WINDOW_NS:
+                window.popleft()
+            self.origin_ns = window[0][1]
             self.last_boot_ms = boot_ms
             self._boot_by_type[mtype] = max(boot_ms, self._boot_by_type.get(mtype, boot_ms))

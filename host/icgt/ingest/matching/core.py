@@ -21,6 +21,7 @@ from icgt.ingest.matching.results import (
 )
 from icgt.ingest.matching.rules import swap_rule, untimed_rule
 from icgt.ingest.matching.search import MAX_SCAN_S, grid, refine, scan, settle
+from icgt.ingest.matching.sessions import match_sessions, split_sessions
 from icgt.ingest.matching.state import Card, Model, Outcome, frames_from
 
 FIRST_PASS_WIDEN_MAX_S = 0.05
@@ -44,7 +45,28 @@ def match_times(
     `time_tolerance_s`: how far a camera's time stamp may be from the exposure start beyond its
     resolution (latency, the recording's own timing error is added per frame). `max_drift_ppm`:
     the largest camera clock rate error believed. `progress(done, total)` after each alignment step.
+    A card of several sessions (`sessions.split_sessions`) is matched one session at a time.
     """
+    images = list(times)
+    sessions = split_sessions(images)
+    if len(sessions) < 2:
+        return _match_session(frames, images, camera_id, time_tolerance_s, max_drift_ppm, progress)
+    return match_sessions(
+        images,
+        sessions,
+        lambda part: _match_session(frames, part, camera_id, time_tolerance_s, max_drift_ppm, progress),
+    )
+
+
+def _match_session(
+    frames: Sequence[FrameRecord],
+    times: Sequence[ImageTime],
+    camera_id: int | None,
+    time_tolerance_s: float,
+    max_drift_ppm: float,
+    progress: Progress | None,
+) -> MatchResult:
+    """`match_times` for the images of one session."""
     result = MatchResult()
     ids = sorted({f.camera_id for f in frames})
     if camera_id is None and len(ids) > 1:
@@ -139,7 +161,16 @@ def match_times(
             note = "the camera clock offset is ambiguous: the pairs that depend on it are not made"
             if note not in result.notes:
                 result.notes.append(note)
-    if verdict is not None and not verdict.decided:
+    if verdict is not None and not verdict.plausible:
+        # the images are not of this log (another flight, a test shot, a session of another recording)
+        for i in [*outcome.pairs, *outcome.ambiguous]:
+            if card.has_time(i):
+                outcome.extra[i] = IMAGE_NO_EXPOSURE
+                outcome.pairs.pop(i, None)
+                outcome.ambiguous.pop(i, None)
+        outcome.frame_ambiguous.clear()
+        result.notes.append(verdict.note())
+    elif verdict is not None and not verdict.decided:
         why = "the camera clock offset is not decided (see the notes): not paired by its time"
         for i in list(outcome.pairs):
             if card.has_time(i):

@@ -35,6 +35,10 @@ OFFSET_MARGIN = 2.0
 EXTRA_IMAGE_WEIGHT) by which an offset must beat every offset outside its neighbourhood to be accepted."""
 EXTRA_IMAGE_WEIGHT = 1.0
 """An image inside the log's span without an exposure, against a triggered exposure without an image."""
+MAX_UNEXPLAINED_SHARE = 0.1
+"""The best offset is believed only when it leaves at most this share of the log's triggered exposures (plus
+OFFSET_MARGIN) contradicted: a card that does not hold the log (another flight, a session of the card that is
+not this recording) is otherwise 'explained' best by the offset laying part of the log on the end of it."""
 MAX_VOTE_IMAGES = 400
 """Images whose times vote for offsets (evenly spread over the card); every eligible exposure votes with each."""
 MAX_OFFSETS = 1500
@@ -56,16 +60,30 @@ class Verdict:
     best: OffsetScore
     rivals: list[OffsetScore]
     """The best offset of each other neighbourhood within OFFSET_MARGIN of the best, best first."""
+    exposures: int = 0
+    """The log's exposures that may have an image (the share of MAX_UNEXPLAINED_SHARE is of these)."""
+
+    @property
+    def plausible(self) -> bool:
+        """Does the best offset explain the log at all (see MAX_UNEXPLAINED_SHARE)?"""
+        return self.best.contradictions <= OFFSET_MARGIN + MAX_UNEXPLAINED_SHARE * self.exposures
 
     @property
     def decided(self) -> bool:
-        return not self.rivals
+        return not self.rivals and self.plausible
 
     def admits(self, offset_s: float, reach_s: float) -> bool:
         """Is `offset_s` in the neighbourhood of the accepted offset?"""
         return abs(offset_s - self.best.offset_s) <= reach_s
 
     def note(self) -> str:
+        if not self.plausible:
+            return (
+                "the card does not hold this log: the offset that explains it best still leaves "
+                f"{self.best.contradictions:g} contradictions over the log's {self.exposures} exposures (at most "
+                f"{MAX_UNEXPLAINED_SHARE:.0%} are believed; an image for {self.best.overlap} of them): "
+                "no image is paired by its time"
+            )
         listed = ", ".join(
             f"{s.offset_s - self.best.offset_s:+.3f} s ({s.contradictions:g} contradictions, {s.overlap} exposures)"
             for s in self.rivals[:4]
@@ -255,4 +273,4 @@ def judge(card: Card, fr: Frames, reach_s: float, slack_s: float) -> Verdict | N
         if all(abs(o - s) > reach_s for s in seen):
             seen.append(o)
             rivals.append(OffsetScore(o, float(score[k]), int(overlap[k])))
-    return Verdict(best, rivals)
+    return Verdict(best, rivals, len(xe))

@@ -1,0 +1,122 @@
+"""A card of several sessions: split where the camera's clock says a new session began, merge their matches.
+
+A camera numbers its files in the order it takes them, so within one session the EXIF times grow with the
+card order. Two flights on one card are two sessions, and between them the camera clock may have been set
+(a reset to a default date, a daylight-saving change, a new time zone): the second session then has its own
+offset, and its times may even fall among the first's. One offset for the whole card cannot explain both,
+and matching it as one lays exposures of one flight on images of the other. So the card is split where the
+time goes back (by more than the EXIF resolution and the jitter of a manual shot) or pauses longer than
+SESSION_GAP_S, and each session is matched on its own, with its own camera clock, or left unmatched.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from icgt.ingest.matching.results import (
+    FRAME_AMBIGUOUS,
+    FRAME_NO_IMAGE,
+    Ambiguous,
+    ImageTime,
+    MatchResult,
+    Pair,
+    UnmatchedFrame,
+)
+
+SESSION_GAP_S = 300.0
+"""A pause in the camera's times longer than this starts a new session [s]: a battery swap between flights
+takes longer, a pause between the passes of one flight rarely does. (A flight paused longer is matched as
+two sessions: each must then single out its own clock, which only a very short part can fail to.)"""
+BACKWARD_SLACK_S = 1.0
+"""A time going back by no more than this beyond the EXIF resolution stays in its session [s] (a manual shot
+taken during a trigger's shutter lag may be numbered before it)."""
+
+
+def split_sessions(times: Sequence[ImageTime]) -> list[range]:
+    """The card's sessions as ranges of card indices (an image without an EXIF time joins the session of the
+    images before it; the card's leading untimed images join the first session)."""
+    breaks: list[int] = []
+    last: ImageTime | None = None
+    for i, t in enumerate(times):
+        if t.time_s is None or t.resolution_s is None:
+            continue
+        if last is not None and last.time_s is not None and last.resolution_s is not None:
+            back = last.time_s - t.time_s
+            gap = t.time_s - (last.time_s + last.resolution_s)
+            if back > max(last.resolution_s, t.resolution_s) + BACKWARD_SLACK_S or gap > SESSION_GAP_S:
+                breaks.append(i)
+        last = t
+    edges = [0, *breaks, len(times)]
+    return [range(a, b) for a, b in itertools.pairwise(edges)]
+
+
+def _label(times: Sequence[ImageTime], k: int, span: range) -> str:
+    first, last = times[span.start].path, times[span.stop - 1].path
+    return f"session {k + 1} ({Path(first).name} .. {Path(last).name}, {len(span)} images)"
+
+
+def match_sessions(
+    times: Sequence[ImageTime], sessions: list[range], match_one: Callable[[list[ImageTime]], MatchResult]
+) -> MatchResult:
+    """Match each session alone and merge: an exposure that two sessions pair is paired by neither (the images
+    become ambiguous), and every note says which session it is about."""
+    results = [match_one(list(times[s.start : s.stop])) for s in sessions]
+    merged = MatchResult()
+    res = [r.resolution_s for r in results if r.resolution_s is not None]
+    merged.resolution_s = max(res) if res else None
+    merged.notes.append(
+        f"the card holds {len(sessions)} sessions (split where the EXIF time goes back, or pauses longer than "
+        f"{SESSION_GAP_S:g} s): each is matched on its own, with its own camera clock"
+    )
+    claims: dict[int, list[int]] = {}
+    for k, r in enumerate(results):
+        for p in r.pairs:
+            claims.setdefault(p.frame.frame_seq, []).append(k)
+    contested = {seq for seq, ks in claims.items() if len(ks) > 1}
+    paired: set[int] = set()
+    for k, (span, r) in enumerate(zip(sessions, results, strict=True)):
+        label = _label(times, k, span)
+        kept: list[Pair] = []
+        for p in r.pairs:
+            if p.frame.frame_seq in contested:
+                others = ", ".join(str(j + 1) for j in claims[p.frame.frame_seq] if j != k)
+                merged.ambiguous.append(
+                    Ambiguous(p.image, (p.frame,), f"sessions {k + 1} and {others} of the card both pair this exposure")
+                )
+            else:
+                kept.append(p)
+                paired.add(p.frame.frame_seq)
+        merged.pairs.extend(kept)
+        merged.ambiguous.extend(r.ambiguous)
+        merged.unmatched_images.extend(r.unmatched_images)
+        offset = "unknown" if r.camera_offset_s is None else f"{r.camera_offset_s:+.3f} s from UTC"
+        merged.notes.append(f"{label}: {len(kept)} paired, camera clock {offset}")
+        merged.notes.extend(f"{label}: {n}" for n in r.notes)
+    # The clock of the session that pairs most is the card's (the others' are in the notes)
+    best = max(range(len(results)), key=lambda k: len(results[k].pairs))
+    merged.camera_offset_s = results[best].camera_offset_s
+    merged.camera_drift_ppm = results[best].camera_drift_ppm
+    # An exposure no session pairs: a candidate of an ambiguous image if any session says so, else without an
+    # image on the card (inside some session's times if any says so), else what every session says
+    chosen: dict[int, UnmatchedFrame] = {}
+    for r in results:
+        for u in r.unmatched_frames:
+            seq = u.frame.frame_seq
+            if seq not in paired and (seq not in chosen or _rank(u) < _rank(chosen[seq])):
+                chosen[seq] = u
+    for seq in contested:
+        frame = next(p.frame for r in results for p in r.pairs if p.frame.frame_seq == seq)
+        chosen[seq] = UnmatchedFrame(frame, FRAME_AMBIGUOUS, "two sessions of the card pair it")
+    merged.unmatched_frames = [chosen[s] for s in sorted(chosen)]
+    return merged
+
+
+def _rank(u: UnmatchedFrame) -> int:
+    """Which session's account of an unpaired exposure is kept: the lowest rank."""
+    if u.reason == FRAME_AMBIGUOUS:
+        return 0
+    if u.reason == FRAME_NO_IMAGE:
+        return 3 if "outside" in u.detail else 2
+    return 1

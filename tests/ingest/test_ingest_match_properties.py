@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 from synthetic_cards import capture, composed_card, interleaving_step
 
 from icgt.demo import Flight
+from icgt.geotag import FrameRecord
 from icgt.ingest.match import ImageTime, cmd_match, list_images, match_times
 from icgt.ingest.matching.align import solve_segment
 from icgt.ingest.matching.reuse import match_images_reusing

@@ -164,7 +164,9 @@ def typical_cases() -> list[Case]:
             feedback_start_t_us=t0 + 48_211,
             feedback_end_t_us=t0 + 49_211,
             duration_us=1000,
-            snapshot_flags=int(m.SnapshotFlags.RANGE_VALID | m.SnapshotFlags.RANGE_INTERPOLATED | m.SnapshotFlags.IMU_VALID),
+            snapshot_flags=int(
+                m.SnapshotFlags.RANGE_VALID | m.SnapshotFlags.RANGE_INTERPOLATED | m.SnapshotFlags.IMU_VALID
+            ),
             range_mm=12_345,
             range_age_us=1_210,
             imu_age_us=4_870,
@@ -394,7 +396,9 @@ def stream_cases() -> list[Case]:
     v1_exposure = struct.pack("<IBBQQQI", 5, 0, 0, 1_000_000, 1_048_000, 1_049_000, 1000)
     cases.append(
         then_ping(
-            Case("version_1_exposure", False).junk(raw_frame(m.Exposure.ID, v1_exposure, 0, version=1), wrong_version=1),
+            Case("version_1_exposure", False).junk(
+                raw_frame(m.Exposure.ID, v1_exposure, 0, version=1), wrong_version=1
+            ),
             1,
         )
     )

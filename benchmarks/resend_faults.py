@@ -12,7 +12,9 @@ With --outage S...: the same hover at 5 fps with the nominal sensor rates (IMU a
 position 50 Hz), once without an unplug and once per unplug of S seconds (at 8 s, the capture running until
 10 s after the cable is back; real time: S + 28 s a flight). For the exposures the unplug covered, it prints
 against the same exposures window of the flight without the unplug: exposures recovered, frames posed, frames
-ranged, the geotag error (median, 95 %, max) and the range error against the simulator's truth, the frames
+ranged (and of those, ranged from the exposure's own sensor snapshot because the device no longer held the
+samples: `range_from_snapshot`), the geotag error (median, 95 %, max) and the range error against the
+simulator's truth, the frames
 that lack a pose or range because of the outage, and the host's telemetry buffer memory at the end of the
 flight (`TelemetryStore.memory_bytes` of a recompute of the log: the same synchroniser as the recorder).
 """
@@ -61,8 +63,10 @@ def _row(label: str, frames: list[FrameScore], exposures: int) -> str:
     with_true_range = sum(f.true_range for f in frames)
     no_pose = sum("telemetry_expired" in f.flags for f in frames)
     no_range = sum("range_samples_lost" in f.flags for f in frames)
+    from_snapshot = sum("range_from_snapshot" in f.flags for f in frames)
     return (
         f"{label:<26} {exposures:>9} {len(frames):>9} {len(posed):>6} {len(ranged):>4}/{with_true_range:<4} "
+        f"{from_snapshot:>8} "
         f"{percentile(posed, 50) * 100:>6.1f} {percentile(posed, 95) * 100:>6.1f} {percentile(posed, 100) * 100:>6.1f} "
         f"{percentile(ranged, 100) * 100:>7.1f} {no_pose:>7} {no_range:>8}"
     )  # fmt: skip
@@ -71,7 +75,7 @@ def _row(label: str, frames: list[FrameScore], exposures: int) -> str:
 def _outages(seconds: list[float], out: Path) -> int:
     sc = load_scenario(SCENARIO)
     print(
-        f"{'flight / exposures':<26} {'exposures':>9} {'recovered':>9} {'posed':>6} {'ranged':>9} "
+        f"{'flight / exposures':<26} {'exposures':>9} {'recovered':>9} {'posed':>6} {'ranged':>9} {'snapshot':>8} "
         f"{'p50 cm':>6} {'p95 cm':>6} {'max cm':>6} {'rng max':>7} {'no pose':>7} {'no range':>8}  telemetry MiB"
     )
     ok = True

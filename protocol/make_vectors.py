@@ -164,6 +164,20 @@ def typical_cases() -> list[Case]:
             feedback_start_t_us=t0 + 48_211,
             feedback_end_t_us=t0 + 49_211,
             duration_us=1000,
+            snapshot_flags=int(
+                m.SnapshotFlags.RANGE_VALID | m.SnapshotFlags.RANGE_INTERPOLATED | m.SnapshotFlags.IMU_VALID
+            ),
+            range_mm=12_345,
+            range_age_us=1_210,
+            imu_age_us=4_870,
+            imu_calib_stat=0xFF,
+            quat_w_q14=11_585,
+            quat_x_q14=-3,
+            quat_y_q14=-11_585,
+            quat_z_q14=16_384,
+            gyro_x_rad900=-32_768,
+            gyro_y_rad900=11,
+            gyro_z_rad900=32_767,
         ),
         m.Imu(
             read_start_t_us=t0,
@@ -371,7 +385,22 @@ def stream_cases() -> list[Case]:
     cases.append(then_ping(Case("unknown_type", False).junk(raw_frame(0x3E, b"", 0), unknown_type=1), 1))
     cases.append(then_ping(Case("type_zero", False).junk(raw_frame(0x00, b"", 0), unknown_type=1), 1))
     cases.append(
-        then_ping(Case("wrong_version", False).junk(raw_frame(m.Ping.ID, ping_body, 0, version=2), wrong_version=1), 1)
+        then_ping(
+            Case("wrong_version", False).junk(
+                raw_frame(m.Ping.ID, ping_body, 0, version=m.PROTOCOL_VERSION + 1), wrong_version=1
+            ),
+            1,
+        )
+    )
+    # A version-1 device's EXPOSURE (34 bytes, no sensor snapshot): refused on its header's version.
+    v1_exposure = struct.pack("<IBBQQQI", 5, 0, 0, 1_000_000, 1_048_000, 1_049_000, 1000)
+    cases.append(
+        then_ping(
+            Case("version_1_exposure", False).junk(
+                raw_frame(m.Exposure.ID, v1_exposure, 0, version=1), wrong_version=1
+            ),
+            1,
+        )
     )
     cases.append(
         then_ping(Case("body_too_long", False).junk(raw_frame(m.Ping.ID, ping_body + b"\x01", 0), bad_length=1), 1)

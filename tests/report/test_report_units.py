@@ -132,6 +132,9 @@ def test_the_summary_counts_frames_without_pose_or_range_because_of_an_outage() 
         frame(3, ["resent", "range_invalid", "range_samples_lost"]),
         frame(4, ["resent", "no_fix", "telemetry_expired", "range_invalid", "range_samples_lost"]),
         frame(5, ["resent", "range_invalid"]),  # the LiDAR saw nothing: not the outage's doing
+        frame(6, ["resent", "range_from_snapshot"]),  # its samples were gone: the exposure's own snapshot ranged it
     ]
     rows = dict(summarize(data))
-    assert rows["frames resent after an outage"] == "4; because of the outage 1 without a pose, 2 without a range"
+    assert rows["frames resent after an outage"] == (
+        "5; because of the outage 1 without a pose, 2 without a range; 1 ranged from the device's snapshot"
+    )

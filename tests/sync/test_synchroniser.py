@@ -501,3 +501,51 @@ def test_a_resent_exposure_without_its_range_samples_says_the_outage_took_them()
     assert "range_samples_lost" not in frames[3].flags
     assert {"resent", "range_invalid", "range_samples_lost"} <= set(frames[1].flags)
     assert "resent" in frames[2].flags and "range_samples_lost" not in frames[2].flags  # samples, none valid
+
+
+def test_a_resent_exposure_whose_samples_are_gone_is_ranged_and_oriented_from_its_own_snapshot() -> None:
+    """Issue 27 part 1 (protocol 2): the range and BNO055 attitude of a frame whose samples the host no longer
+    has come from the EXPOSURE's snapshot, flagged and named as the source; a frame with samples around mid
+    keeps using them; a snapshot too old, or none (a version-1 log), leaves the frame unranged as before."""
+    from icgt.protocol.messages import Imu, Range, SnapshotFlags
+
+    sync = Synchroniser()
+    t = 100 * S
+    sync.on_device(Hello(protocol_version=2, t_us=(t - DEV_BOOT_HOST_NS) // 1000), t)
+    sync_device_clock(sync, t)
+    dev0 = (t - DEV_BOOT_HOST_NS) // 1000
+    for k in range(200):  # valid ranges (3.00 m) and IMU samples (identity) 5 s .. 7 s after t, at 100 Hz
+        d = dev0 + 5_000_000 + k * 10_000
+        sync.on_device(Range(acq_start_t_us=d, read_t_us=d + 500, distance_cm=300, flags=1), t + 5 * S)
+        sync.on_device(Imu(read_start_t_us=d, read_end_t_us=d + 1000, quat_w=1.0, calib_stat=0xFF), t + 5 * S)
+    full = int(SnapshotFlags.RANGE_VALID | SnapshotFlags.RANGE_INTERPOLATED | SnapshotFlags.IMU_VALID)
+    # A quarter turn about z, 0.5 rad/s about z, calibrated; 4.321 m, 2 ms from its nearer acquisition.
+    snap = dict(
+        snapshot_flags=full, range_mm=4321, range_age_us=2000, imu_age_us=3000, imu_calib_stat=0xFF,
+        quat_w_q14=11585, quat_z_q14=11585, gyro_z_rad900=450,
+    )  # fmt: skip
+    sync.on_device(Exposure(image_index=1, trigger_t_us=dev0 + 1_000_000, **snap), t + 7 * S, retransmitted=True)
+    sync.on_device(Exposure(image_index=2, trigger_t_us=dev0 + 6_000_000, **snap), t + 7 * S)
+    stale = dict(snap, range_age_us=0xFFFF)
+    sync.on_device(Exposure(image_index=3, trigger_t_us=dev0 + 1_500_000, **stale), t + 7 * S, retransmitted=True)
+    sync.on_device(Exposure(image_index=4, trigger_t_us=dev0 + 2_000_000), t + 7 * S, retransmitted=True)
+    frames = {f.image_index: f for f in sync.poll(t + 8 * S, flush=True)}
+
+    gone = frames[1]
+    assert gone.range_m == pytest.approx(4.321) and gone.range_age_ms == pytest.approx(2.0) and gone.range_valid
+    assert gone.range_source == "snapshot" and "range_from_snapshot" in gone.flags
+    assert not {"range_invalid", "range_samples_lost"} & set(gone.flags)
+    assert gone.imu_source == "snapshot" and "imu_from_snapshot" in gone.flags
+    assert (gone.imu_qw, gone.imu_qz) == (pytest.approx(0.70709, abs=1e-4), pytest.approx(0.70709, abs=1e-4))
+    assert gone.imu_gyro_rad_s == pytest.approx(0.5) and gone.imu_age_ms == pytest.approx(3.0)
+    assert gone.imu_calib_sys == 3 and "imu_uncalibrated" not in gone.flags
+
+    live = frames[2]  # samples at mid: they win over the snapshot
+    assert live.range_m == pytest.approx(3.0) and live.range_source == "samples" and live.imu_source == "samples"
+    assert live.imu_qw == pytest.approx(1.0)
+    assert not {"range_from_snapshot", "imu_from_snapshot"} & set(live.flags)
+
+    for too_old_or_none in (frames[3], frames[4]):
+        assert too_old_or_none.range_m is None and too_old_or_none.range_source == "none"
+        assert {"resent", "range_invalid", "range_samples_lost"} <= set(too_old_or_none.flags)
+    assert frames[3].imu_source == "snapshot" and frames[4].imu_source == "samples"  # v1: the nearest sample held

@@ -136,6 +136,7 @@ void App::poll() {
   drain_exposures(start);
   drain_pps();
   step_sensors(ports_.clock.now_us());
+  release_exposures(ports_.clock.now_us());
   report_sensor_states(ports_.clock.now_us());
 
   const uint64_t now = ports_.clock.now_us();
@@ -403,6 +404,7 @@ void App::step_sensors(uint64_t now_us) {
     m.flags = static_cast<uint8_t>(proto::ImuFlags::fusion_running |
                                    (s.reinitialised ? proto::ImuFlags::reinitialised : 0u));
     (void)outbox_.push(m);  // shed when full, counted as dropped_imu
+    snapshot_.add_imu(s);
   }
   const uint64_t lidar_t_us = ports_.clock.now_us();
   const bool lidar_go = lidar_enabled_ && i2c_credit_left(lidar_t_us);
@@ -423,6 +425,7 @@ void App::step_sensors(uint64_t now_us) {
     if (s.i2c_error) flags |= proto::RangeFlags::i2c_error;
     m.flags = static_cast<uint8_t>(flags);
     (void)outbox_.push(m);  // shed when full, counted as dropped_range
+    snapshot_.add_range(s);
   }
 }
 
@@ -440,9 +443,45 @@ void App::drain_exposures(uint64_t now_us) {
       m.feedback_start_t_us = out[i].feedback_start_t_us;
       m.feedback_end_t_us = out[i].feedback_end_t_us;
       m.duration_us = out[i].duration_us;
-      (void)outbox_.push(m);  // the event queue is never shed; a full one counts dropped_event
+      // Mid-exposure as the host computes it (icgt.geotag.geotagger.Geotagger.add_exposure).
+      uint64_t mid_us = m.trigger_t_us;
+      if (m.feedback_start_t_us != 0) {
+        mid_us = m.feedback_start_t_us;
+        if (m.feedback_end_t_us != 0) mid_us += (m.feedback_end_t_us - m.feedback_start_t_us) / 2;
+      }
+      release_exposures(now_us);
+      if (held_count_ == kHeldExposures) send_held_front();  // never expected: 8 shots within 50 ms
+      held_[(held_head_ + held_count_) % kHeldExposures] = HeldExposure{m, mid_us};
+      ++held_count_;
     }
   } while (n == 8);
+  release_exposures(now_us);
+}
+
+void App::release_exposures(uint64_t now_us) {
+  while (held_count_ > 0 && snapshot_.settled(held_[held_head_].mid_us, now_us, lidar_enabled_, imu_enabled_)) {
+    send_held_front();
+  }
+}
+
+void App::send_held_front() {
+  HeldExposure& h = held_[held_head_];
+  const Snapshot s = snapshot_.at(h.mid_us);
+  h.msg.snapshot_flags = s.flags;
+  h.msg.range_mm = s.range_mm;
+  h.msg.range_age_us = s.range_age_us;
+  h.msg.imu_age_us = s.imu_age_us;
+  h.msg.imu_calib_stat = s.imu_calib_stat;
+  h.msg.quat_w_q14 = s.quat_q14[0];
+  h.msg.quat_x_q14 = s.quat_q14[1];
+  h.msg.quat_y_q14 = s.quat_q14[2];
+  h.msg.quat_z_q14 = s.quat_q14[3];
+  h.msg.gyro_x_rad900 = s.gyro_rad900[0];
+  h.msg.gyro_y_rad900 = s.gyro_rad900[1];
+  h.msg.gyro_z_rad900 = s.gyro_rad900[2];
+  (void)outbox_.push(h.msg);  // the event queue is never shed; a full one counts dropped_event
+  held_head_ = (held_head_ + 1) % kHeldExposures;
+  --held_count_;
 }
 
 void App::drain_pps() {

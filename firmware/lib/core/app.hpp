@@ -14,6 +14,7 @@
 #include "core/exposure_pairing.hpp"
 #include "core/lidar_lite.hpp"
 #include "core/outbox.hpp"
+#include "core/snapshot.hpp"
 #include "core/time_sync_responder.hpp"
 #include "core/timebase.hpp"
 #include "core/trigger.hpp"
@@ -66,6 +67,10 @@ class App {
   // whatever the device sent in that window, HELLO and queued exposures included.
   static constexpr uint64_t kLinkSettleUs = 100'000;
   static constexpr std::size_t kRxChunkBytes = 64;
+  // Exposures waiting for the samples after their mid-exposure (their sensor snapshot, snapshot.hpp):
+  // at most SensorSnapshot::kBracketUs each, so 8 covers 20 shots/s with room. A full hold sends the
+  // oldest at once with what the snapshot has then.
+  static constexpr std::size_t kHeldExposures = 8;
   // I2C budget: the sensor drivers' transfers block the loop (Wire waits for the bus), so
   // they may take at most this share of the loop's time in the long run. A credit of bus time
   // grows at kI2cSharePercent of the time that passes (capped at kI2cBurstUs) and each sensor
@@ -92,6 +97,8 @@ class App {
   [[nodiscard]] const Bno055& imu() const { return imu_; }
   [[nodiscard]] const LidarLite& lidar() const { return lidar_; }
   [[nodiscard]] const Timebase& timebase() const { return timebase_; }
+  [[nodiscard]] const SensorSnapshot& snapshot() const { return snapshot_; }
+  [[nodiscard]] std::size_t held_exposures() const { return held_count_; }
   [[nodiscard]] const DeviceConfig& config() const { return config_; }
   [[nodiscard]] const proto::DecoderStats& rx_stats() const { return rx_.stats(); }
   [[nodiscard]] proto::Status status(uint64_t now_us);
@@ -113,6 +120,10 @@ class App {
   [[nodiscard]] bool i2c_credit_left(uint64_t now_us);
   void spend_i2c(uint64_t from_us);
   void drain_exposures(uint64_t now_us);
+  // Sends the held exposures whose snapshot is settled, oldest first (mids are in order, so are deadlines).
+  void release_exposures(uint64_t now_us);
+  // Fills the oldest held exposure's snapshot from what is held now and queues it.
+  void send_held_front();
   void drain_pps();
   void report_sensor_states(uint64_t now_us);
   void send_hello(uint64_t now_us);
@@ -128,6 +139,14 @@ class App {
   LidarLite lidar_;
   Outbox outbox_;
   TimeSyncResponder time_sync_;
+  SensorSnapshot snapshot_;
+  struct HeldExposure {
+    proto::Exposure msg;
+    uint64_t mid_us;
+  };
+  HeldExposure held_[kHeldExposures]{};
+  std::size_t held_head_ = 0;
+  std::size_t held_count_ = 0;
   proto::StreamDecoder rx_;
 
   bool imu_enabled_;

@@ -39,14 +39,17 @@ struct HistorySizes {
   std::size_t kind_entries;  // power of two
 };
 
+// An event slot is 64 bytes since protocol version 2 (40 before): the EXPOSURE body grew from 34 to 56
+// bytes with its sensor snapshot (snapshot.hpp), which is what lets an exposure outlive its samples.
 // Teensy 4.1 (i.MX RT1062, 512 KiB tightly coupled data RAM of 1 MiB): 4096 events = 11.4 min of
 // 5 fps exposures with PPS (at least 10 minutes required), 512 IMU samples (5.1 s at 100 Hz),
 // 1024 ranges (5.1 s at 200 Hz), kinds of the last 2^18 frames (14 min at 310 frames/s).
 inline constexpr HistorySizes kTeensy41History{4096, 512, 1024, std::size_t{1} << 18};
 // Teensy 3.6 (MK66FX1M0, 256 KiB RAM in all): what fits beside the core, the USB stack and the
-// stack: 3072 events = 8.5 min of 5 fps exposures with PPS, 128 IMU samples (1.3 s), 256 ranges
-// (1.3 s), kinds of the last 2^17 frames (7 min at 310 frames/s).
-inline constexpr HistorySizes kTeensy36History{3072, 128, 256, std::size_t{1} << 17};
+// stack: 2048 events = 5.7 min of 5 fps exposures with PPS (3072 = 8.5 min with the 40-byte slots
+// of version 1; each exposure now brings its range and attitude back with it), 128 IMU samples
+// (1.3 s), 256 ranges (1.3 s), kinds of the last 2^17 frames (7 min at 310 frames/s).
+inline constexpr HistorySizes kTeensy36History{2048, 128, 256, std::size_t{1} << 17};
 
 #if defined(ICGT_BOARD_TEENSY36) || defined(ARDUINO_TEENSY36) || defined(__MK66FX1M0__)
 inline constexpr HistorySizes kHistorySizes = kTeensy36History;
@@ -60,6 +63,7 @@ static_assert(kTeensy41History.event_slots >= 10 * 60 * (5 + 1), "Teensy 4.1: 10
 
 inline constexpr std::size_t kEventHistoryBody = proto::Exposure::kMaxBodyBytes;
 static_assert(proto::Pps::kMaxBodyBytes <= kEventHistoryBody, "PPS must fit the event history slots");
+static_assert(sizeof(uint32_t) + 2 + kEventHistoryBody <= 64, "an event slot (seq, type, len, body) stays 64 bytes");
 
 // Frames of one kind in sequence order; the oldest is overwritten when full.
 template <std::size_t Body, std::size_t Slots>

@@ -10,8 +10,8 @@
 
 namespace icgt::proto {
 
-inline constexpr uint8_t kProtocolVersion = 1;
-inline constexpr uint32_t kTableHash = 0xEE47777Fu;
+inline constexpr uint8_t kProtocolVersion = 2;
+inline constexpr uint32_t kTableHash = 0xCBDF4361u;
 inline constexpr std::size_t kMaxFrameBytes = 256;
 inline constexpr std::size_t kHeaderBytes = 8;
 inline constexpr std::size_t kCrcBytes = 4;
@@ -70,7 +70,7 @@ enum class MsgId : uint8_t {
   switch (id) {
     case 0x01: min_bytes = 44; max_bytes = 44; return true;
     case 0x02: min_bytes = 70; max_bytes = 70; return true;
-    case 0x03: min_bytes = 34; max_bytes = 34; return true;
+    case 0x03: min_bytes = 56; max_bytes = 56; return true;
     case 0x04: min_bytes = 70; max_bytes = 70; return true;
     case 0x05: min_bytes = 20; max_bytes = 20; return true;
     case 0x06: min_bytes = 12; max_bytes = 12; return true;
@@ -186,6 +186,14 @@ inline constexpr uint32_t unsolicited = 1u << 2;
 inline constexpr uint32_t end_missing = 1u << 3;
 inline constexpr uint32_t focus_cycle = 1u << 4;
 }  // namespace ExposureFlags
+
+// What an EXPOSURE's sensor snapshot holds. range_valid clear: no valid LiDAR acquisition was held (range fields 0); imu_valid clear: no IMU sample was held (IMU fields 0). *_interpolated: between the two samples that bracket mid-exposure (each within 50 ms of it); clear: the nearest sample, its age in the *_age_us field.
+namespace SnapshotFlags {
+inline constexpr uint32_t range_valid = 1u << 0;
+inline constexpr uint32_t range_interpolated = 1u << 1;
+inline constexpr uint32_t imu_valid = 1u << 2;
+inline constexpr uint32_t imu_interpolated = 1u << 3;
+}  // namespace SnapshotFlags
 
 // Quality of one RANGE sample.
 namespace RangeFlags {
@@ -390,12 +398,12 @@ struct Status {
   }
 };
 
-// EXPOSURE (device to host): One per trigger, and one per unsolicited feedback pulse. Never shed.
+// EXPOSURE (device to host): One per trigger, and one per unsolicited feedback pulse. Never shed. Carries the device's sensor snapshot at mid-exposure (since version 2): sent once the range and IMU samples after mid are in, or 50 ms after mid at the latest.
 struct Exposure {
   static constexpr MsgId kId = MsgId::EXPOSURE;
   static constexpr const char* kName = "EXPOSURE";
-  static constexpr std::size_t kMinBodyBytes = 34;
-  static constexpr std::size_t kMaxBodyBytes = 34;
+  static constexpr std::size_t kMinBodyBytes = 56;
+  static constexpr std::size_t kMaxBodyBytes = 56;
   uint32_t image_index{};  // [count] Monotonic index of the trigger since boot (0 for an unsolicited exposure).
   uint8_t camera_id{};  // [1] Camera port (0 = first).
   uint8_t flags{};  // [bitmask] Quality.
@@ -403,10 +411,22 @@ struct Exposure {
   uint64_t feedback_start_t_us{};  // [us] Hot-shoe / flash-sync edge that starts the exposure; 0 if none.
   uint64_t feedback_end_t_us{};  // [us] Edge that ends the exposure; 0 if none.
   uint32_t duration_us{};  // [us] feedback_end - feedback_start; 0 if unknown.
+  uint8_t snapshot_flags{};  // [bitmask] What the sensor snapshot below holds. The snapshot is the device's own view at mid-exposure (feedback start + duration / 2; feedback start alone; else the trigger), kept with the exposure in the history so it survives an outage that outlives the samples.
+  uint16_t range_mm{};  // [mm] LiDAR distance at mid-exposure from the valid acquisitions (acq_start_t_us) around it: interpolated between the two that bracket mid, else the nearest; 0 when range_valid is clear.
+  uint16_t range_age_us{};  // [us] Mid-exposure to the nearest acquisition used (interpolated: the nearer of the two); 65535 = 65.535 ms or older.
+  uint16_t imu_age_us{};  // [us] Mid-exposure to the nearest IMU sample used (its read midpoint; interpolated: the nearer of the two); 65535 = 65.535 ms or older.
+  uint8_t imu_calib_stat{};  // [bitmask] CALIB_STAT of the nearest IMU sample (as IMU.calib_stat).
+  int16_t quat_w_q14{};  // [1/16384] BNO055 orientation quaternion W at mid-exposure, 16384 = 1 (the BNO055's own scale; normalised after interpolation).
+  int16_t quat_x_q14{};  // [1/16384] Quaternion X, 16384 = 1.
+  int16_t quat_y_q14{};  // [1/16384] Quaternion Y, 16384 = 1.
+  int16_t quat_z_q14{};  // [1/16384] Quaternion Z, 16384 = 1.
+  int16_t gyro_x_rad900{};  // [rad/s / 900] Angular rate X at mid-exposure, 900 = 1 rad/s (the BNO055's rad/s scale; saturates at +-36.4 rad/s).
+  int16_t gyro_y_rad900{};  // [rad/s / 900] Angular rate Y, 900 = 1 rad/s.
+  int16_t gyro_z_rad900{};  // [rad/s / 900] Angular rate Z, 900 = 1 rad/s.
 
   // Writes the body into out; returns the bytes written, 0 if cap is too small.
   [[nodiscard]] std::size_t encode(uint8_t* out, std::size_t cap) const {
-    const std::size_t n = 34u;
+    const std::size_t n = 56u;
     if (n > cap) return 0;
     wire::put(out + 0, image_index);
     wire::put(out + 4, camera_id);
@@ -415,6 +435,18 @@ struct Exposure {
     wire::put(out + 14, feedback_start_t_us);
     wire::put(out + 22, feedback_end_t_us);
     wire::put(out + 30, duration_us);
+    wire::put(out + 34, snapshot_flags);
+    wire::put(out + 35, range_mm);
+    wire::put(out + 37, range_age_us);
+    wire::put(out + 39, imu_age_us);
+    wire::put(out + 41, imu_calib_stat);
+    wire::put(out + 42, quat_w_q14);
+    wire::put(out + 44, quat_x_q14);
+    wire::put(out + 46, quat_y_q14);
+    wire::put(out + 48, quat_z_q14);
+    wire::put(out + 50, gyro_x_rad900);
+    wire::put(out + 52, gyro_y_rad900);
+    wire::put(out + 54, gyro_z_rad900);
     return n;
   }
 
@@ -428,6 +460,18 @@ struct Exposure {
     feedback_start_t_us = wire::get<uint64_t>(in + 14);
     feedback_end_t_us = wire::get<uint64_t>(in + 22);
     duration_us = wire::get<uint32_t>(in + 30);
+    snapshot_flags = wire::get<uint8_t>(in + 34);
+    range_mm = wire::get<uint16_t>(in + 35);
+    range_age_us = wire::get<uint16_t>(in + 37);
+    imu_age_us = wire::get<uint16_t>(in + 39);
+    imu_calib_stat = wire::get<uint8_t>(in + 41);
+    quat_w_q14 = wire::get<int16_t>(in + 42);
+    quat_x_q14 = wire::get<int16_t>(in + 44);
+    quat_y_q14 = wire::get<int16_t>(in + 46);
+    quat_z_q14 = wire::get<int16_t>(in + 48);
+    gyro_x_rad900 = wire::get<int16_t>(in + 50);
+    gyro_y_rad900 = wire::get<int16_t>(in + 52);
+    gyro_z_rad900 = wire::get<int16_t>(in + 54);
     return true;
   }
 
@@ -441,6 +485,18 @@ struct Exposure {
     v("feedback_start_t_us", feedback_start_t_us);
     v("feedback_end_t_us", feedback_end_t_us);
     v("duration_us", duration_us);
+    v("snapshot_flags", snapshot_flags);
+    v("range_mm", range_mm);
+    v("range_age_us", range_age_us);
+    v("imu_age_us", imu_age_us);
+    v("imu_calib_stat", imu_calib_stat);
+    v("quat_w_q14", quat_w_q14);
+    v("quat_x_q14", quat_x_q14);
+    v("quat_y_q14", quat_y_q14);
+    v("quat_z_q14", quat_z_q14);
+    v("gyro_x_rad900", gyro_x_rad900);
+    v("gyro_y_rad900", gyro_y_rad900);
+    v("gyro_z_rad900", gyro_z_rad900);
   }
 };
 

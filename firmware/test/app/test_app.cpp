@@ -2,6 +2,9 @@
 // the stream a capture produces, sensor failures, link saturation and unplugging.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
 #include <cstring>
 #include <map>
 #include <vector>
@@ -187,6 +190,63 @@ TEST(App, IntervalCaptureStreamsEveryExposureWithFeedbackAndSensorsAtTheirRates)
   EXPECT_EQ(last.dropped_event + last.dropped_imu + last.dropped_range, 0u);
   EXPECT_EQ(last.sensor_health & (proto::SensorHealth::imu_ok | proto::SensorHealth::lidar_ok),
             proto::SensorHealth::imu_ok | proto::SensorHealth::lidar_ok);
+}
+
+// The snapshot an EXPOSURE carries (protocol version 2) against the RANGE and IMU frames the host got: what
+// the host computes from those samples (icgt.geotag.geotagger) is what the snapshot says, to the millimetre.
+TEST(App, EveryExposureCarriesTheRangeAndAttitudeAtMidThatItsSamplesGive) {
+  Rig rig;
+  rig.run_for(2'000'000);  // the BNO055 boots
+  rig.host.send(interval_capture());
+  rig.run_for(5'000'000);
+  rig.host.send(proto::StopCapture{});
+  rig.run_for(500'000);
+  std::vector<proto::Range> ranges;
+  for (const auto& f : rig.host.of(proto::MsgId::RANGE)) {
+    const auto r = f.as<proto::Range>();
+    if (r.flags & proto::RangeFlags::valid) ranges.push_back(r);
+  }
+  std::vector<proto::Imu> imus;
+  for (const auto& f : rig.host.of(proto::MsgId::IMU)) imus.push_back(f.as<proto::Imu>());
+  const auto exposures = rig.host.of(proto::MsgId::EXPOSURE);
+  ASSERT_GE(exposures.size(), 20u);
+  ASSERT_GT(ranges.size(), 500u);
+  for (const auto& f : exposures) {
+    const auto e = f.as<proto::Exposure>();
+    const uint64_t mid = e.feedback_start_t_us + e.duration_us / 2;
+    const uint8_t want = proto::SnapshotFlags::range_valid | proto::SnapshotFlags::range_interpolated |
+                         proto::SnapshotFlags::imu_valid | proto::SnapshotFlags::imu_interpolated;
+    EXPECT_EQ(e.snapshot_flags, want) << "held until the samples after mid were in, image " << e.image_index;
+    // The host's rule: the nearest valid acquisitions at or before and at or after mid, interpolated.
+    std::size_t b = 0;
+    while (b < ranges.size() && ranges[b].acq_start_t_us < mid) ++b;
+    ASSERT_TRUE(b > 0 && b < ranges.size());
+    const auto& ra = ranges[b - 1];
+    const auto& rb = ranges[b];
+    const double frac = static_cast<double>(mid - ra.acq_start_t_us) /
+                        static_cast<double>(rb.acq_start_t_us - ra.acq_start_t_us);
+    const double host_mm = 10.0 * (ra.distance_cm + (rb.distance_cm - ra.distance_cm) * frac);
+    EXPECT_NEAR(e.range_mm, host_mm, 0.5) << "image " << e.image_index;
+    EXPECT_EQ(e.range_age_us, std::min(mid - ra.acq_start_t_us, rb.acq_start_t_us - mid));
+    // The IMU sample nearest mid (what the host keeps): the snapshot is within its motion to mid.
+    const proto::Imu* nearest = nullptr;
+    uint64_t best = UINT64_MAX;
+    for (const auto& m : imus) {
+      const uint64_t t = m.read_start_t_us + (m.read_end_t_us - m.read_start_t_us) / 2;
+      const uint64_t d = t > mid ? t - mid : mid - t;
+      if (d < best) {
+        best = d;
+        nearest = &m;
+      }
+    }
+    ASSERT_NE(nearest, nullptr);
+    EXPECT_EQ(e.imu_age_us, best);
+    EXPECT_LE(best, 5'000u) << "100 Hz: the nearer sample is at most half a period away";
+    const double dot = std::abs(e.quat_w_q14 / 16384.0 * nearest->quat_w + e.quat_x_q14 / 16384.0 * nearest->quat_x +
+                                e.quat_y_q14 / 16384.0 * nearest->quat_y + e.quat_z_q14 / 16384.0 * nearest->quat_z);
+    EXPECT_GT(dot, std::cos(0.01)) << "within 0.02 rad of the nearest sample, image " << e.image_index;
+    EXPECT_EQ(e.imu_calib_stat, nearest->calib_stat);
+  }
 }
 
 TEST(App, EveryCommandRefusalCaseNamesItsLimit) {
@@ -490,6 +550,11 @@ TEST(App, MissingSensorsDoNotStopCaptureAndAreReported) {
   EXPECT_EQ(rig.host.ack_for(seq).error_code, 0u);
   EXPECT_GE(rig.host.of(proto::MsgId::EXPOSURE).size(), 9u);
   EXPECT_TRUE(rig.host.of(proto::MsgId::IMU).empty());
+  for (const auto& f : rig.host.of(proto::MsgId::EXPOSURE)) {
+    const auto e = f.as<proto::Exposure>();
+    EXPECT_EQ(e.snapshot_flags, 0u) << "no sensor: the snapshot says it holds nothing";
+    EXPECT_EQ(e.range_mm, 0u);
+  }
   const auto last = rig.host.of(proto::MsgId::STATUS).back().as<proto::Status>();
   EXPECT_EQ(last.sensor_health & (proto::SensorHealth::imu_present | proto::SensorHealth::lidar_present), 0u);
   bool logged = false;

@@ -24,7 +24,8 @@ from icgt.errors import IcgtError
 from icgt.geodesy import LocalFrame, q_from_euler_zyx, q_multiply, q_rotate, q_slerp, q_to_euler_zyx
 from icgt.geotag.bounds import MotionAllowance
 from icgt.geotag.position import PoseGap, PositionEstimate, PositionRules, estimate_position
-from icgt.geotag.record import FrameFlag, FrameRecord, PositionSource
+from icgt.geotag.record import FrameFlag, FrameRecord, PositionSource, SensorSource
+from icgt.geotag.snapshot import SNAPSHOT_AGE_SATURATED_US, ImuAtMid, snapshot_imu, snapshot_range_valid
 from icgt.mavlink.telemetry import (
     AttitudeSample,
     TelemetryBuffer,
@@ -333,8 +334,8 @@ class Geotagger:
         if placed is None and mid_boot is not None and self._telemetry_expired(mid_boot):
             flags.append(FrameFlag.TELEMETRY_EXPIRED.value)
         att = self._attitude(mid_boot, flags)
-        imu = self._imu_at(p.mid_device_us)
-        rng = self._range_at(p.mid_device_us, flags)
+        imu = self._imu_at(p.mid_device_us, e, flags)
+        rng = self._range_at(p.mid_device_us, e, flags)
 
         lat = lon = alt = None
         enu: np.ndarray | None = None
@@ -375,8 +376,7 @@ class Geotagger:
         if body_q is not None:
             r, pt, y = q_to_euler_zyx(body_q)
             roll, pitch, yaw = math.degrees(float(r)), math.degrees(float(pt)), math.degrees(float(y)) % 360.0
-        imu_msg = imu.msg if imu is not None and isinstance(imu.msg, Imu) else None
-        calib = imu_msg.calib_stat if imu_msg is not None else None
+        calib = imu.calib_stat if imu is not None else None
         if calib is not None and (calib >> 6) & 3 < 3:
             flags.append(FrameFlag.IMU_UNCALIBRATED.value)
         return FrameRecord(
@@ -422,23 +422,21 @@ class Geotagger:
             cam_qx=float(cam_q[1]) if cam_q is not None else None,
             cam_qy=float(cam_q[2]) if cam_q is not None else None,
             cam_qz=float(cam_q[3]) if cam_q is not None else None,
-            imu_qw=imu_msg.quat_w if imu_msg else None,
-            imu_qx=imu_msg.quat_x if imu_msg else None,
-            imu_qy=imu_msg.quat_y if imu_msg else None,
-            imu_qz=imu_msg.quat_z if imu_msg else None,
-            imu_gyro_rad_s=(
-                math.sqrt(imu_msg.gyro_x_rad_s**2 + imu_msg.gyro_y_rad_s**2 + imu_msg.gyro_z_rad_s**2)
-                if imu_msg
-                else None
-            ),
+            imu_qw=imu.q_wxyz[0] if imu else None,
+            imu_qx=imu.q_wxyz[1] if imu else None,
+            imu_qy=imu.q_wxyz[2] if imu else None,
+            imu_qz=imu.q_wxyz[3] if imu else None,
+            imu_gyro_rad_s=math.sqrt(sum(w * w for w in imu.gyro_rad_s)) if imu else None,
             imu_calib_sys=(calib >> 6) & 3 if calib is not None else None,
             imu_calib_gyr=(calib >> 4) & 3 if calib is not None else None,
             imu_calib_acc=(calib >> 2) & 3 if calib is not None else None,
             imu_calib_mag=calib & 3 if calib is not None else None,
-            imu_age_ms=(p.mid_device_us - imu.boot_us) / 1000.0 if imu is not None else None,
+            imu_age_ms=imu.age_ms if imu is not None else None,
+            imu_source=imu.source.value if imu is not None else SensorSource.NONE.value,
             range_m=rng[0] if rng else None,
             range_age_ms=rng[1] if rng else None,
             range_valid=rng is not None and rng[0] is not None,
+            range_source=rng[2].value if rng else SensorSource.NONE.value,
             scale_mm_per_px=scale,
             incidence_deg=incidence,
             blur_px=blur,
@@ -526,14 +524,32 @@ class Geotagger:
         oldest = self._tm.fused.oldest()
         return self._tm.fused.expired > 0 and oldest is not None and oldest.boot_us > mid_boot
 
-    def _imu_at(self, mid_device_us: int) -> DeviceSample | None:
+    def _imu_at(self, mid_device_us: int, e: Exposure, flags: list[str]) -> ImuAtMid | None:
+        """The BNO055 at mid: the nearest IMU sample held, unless the exposure's snapshot is nearer mid (the
+        samples around it were lost in an outage or left the buffer): then the snapshot, flagged."""
         before, after = self._imu.bracket(mid_device_us)
-        if before is None or after is None:
-            return before or after
-        return before if mid_device_us - before.boot_us <= after.boot_us - mid_device_us else after
+        s = before if after is None else after if before is None else (
+            before if mid_device_us - before.boot_us <= after.boot_us - mid_device_us else after
+        )  # fmt: skip
+        snap = snapshot_imu(e)
+        if s is not None and isinstance(s.msg, Imu):
+            age_ms = (mid_device_us - s.boot_us) / 1000.0
+            if snap is None or abs(age_ms) <= snap.age_ms:
+                m = s.msg
+                q = (m.quat_w, m.quat_x, m.quat_y, m.quat_z)
+                w = (m.gyro_x_rad_s, m.gyro_y_rad_s, m.gyro_z_rad_s)
+                return ImuAtMid(q, w, m.calib_stat, age_ms, SensorSource.SAMPLES)
+        if snap is not None:
+            flags.append(FrameFlag.IMU_FROM_SNAPSHOT.value)
+        return snap
 
-    def _range_at(self, mid_device_us: int, flags: list[str]) -> tuple[float | None, float | None] | None:
-        """(range [m] at mid or None, age of the nearest valid acquisition [ms])."""
+    def _range_at(
+        self, mid_device_us: int, e: Exposure, flags: list[str]
+    ) -> tuple[float | None, float | None, SensorSource] | None:
+        """(range [m] at mid or None, age of the nearest valid acquisition [ms], where it came from).
+
+        The samples held around mid first; with no valid one within ``range_stale_ms``, the exposure's own
+        snapshot (protocol 2) if it holds a range no older than that (flagged ``range_from_snapshot``)."""
         window_us = int(self._cfg.range_stale_ms * 1000)
         window = self._range.between(mid_device_us - window_us, mid_device_us + window_us)
         # The nearest valid acquisitions at or before and at or after mid, searched outwards from mid: the
@@ -542,12 +558,19 @@ class Geotagger:
         i_after = bisect_left(window, mid_device_us, key=_boot_us)  # window[i_after:]: at or after mid
         a = next((window[i] for i in range(i_before - 1, -1, -1) if _valid_range(window[i])), None)
         b = next((window[i] for i in range(i_after, len(window)) if _valid_range(window[i])), None)
+        source = SensorSource.SAMPLES
         if a is None and b is None:
-            flags.append(FrameFlag.RANGE_INVALID.value)
-            if not window and FrameFlag.RESENT.value in flags:
-                flags.append(FrameFlag.RANGE_SAMPLES_LOST.value)  # not one sample came back from around mid
-            return None
-        if a is not None and b is not None:
+            age_us = e.range_age_us
+            if snapshot_range_valid(e) and age_us != SNAPSHOT_AGE_SATURATED_US and age_us <= window_us:
+                r, age = e.range_mm / 1000.0, age_us / 1000.0
+                flags.append(FrameFlag.RANGE_FROM_SNAPSHOT.value)
+                source = SensorSource.SNAPSHOT
+            else:
+                flags.append(FrameFlag.RANGE_INVALID.value)
+                if not window and FrameFlag.RESENT.value in flags:
+                    flags.append(FrameFlag.RANGE_SAMPLES_LOST.value)  # not one sample came back from around mid
+                return None
+        elif a is not None and b is not None:
             ra, rb = a.msg.distance_cm / 100.0, b.msg.distance_cm / 100.0  # type: ignore[union-attr]
             f = 0.0 if b.boot_us == a.boot_us else (mid_device_us - a.boot_us) / (b.boot_us - a.boot_us)
             r = ra + (rb - ra) * f
@@ -559,16 +582,15 @@ class Geotagger:
             age = abs(mid_device_us - s.boot_us) / 1000.0
         if not self._cfg.range_min_m <= r <= self._cfg.range_max_m:
             flags.append(FrameFlag.RANGE_OUT_OF_BAND.value)
-        return r, age
+        return r, age, source
 
     def _blur_px(
-        self, imu: DeviceSample | None, mid_boot: float | None, duration_us: int, scale_mm_per_px: float | None
+        self, imu: ImuAtMid | None, mid_boot: float | None, duration_us: int, scale_mm_per_px: float | None
     ) -> float | None:
         """Rotation blur = |omega| x exposure x focal length [px] (plus translation when the speed is known)."""
-        if imu is None or not isinstance(imu.msg, Imu) or duration_us <= 0:
+        if imu is None or duration_us <= 0:
             return None
-        m = imu.msg
-        omega = math.sqrt(m.gyro_x_rad_s**2 + m.gyro_y_rad_s**2 + m.gyro_z_rad_s**2)
+        omega = math.sqrt(sum(w * w for w in imu.gyro_rad_s))
         blur = omega * duration_us * 1e-6 * self._cfg.focal_length_px
         # The velocity of the fused sample at or before mid-exposure (not the newest one, which
         # would make the figure depend on when the frame happened to be emitted).

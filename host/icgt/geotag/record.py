@@ -27,6 +27,14 @@ class PositionSource(enum.StrEnum):
     NONE = "none"
 
 
+class SensorSource(enum.StrEnum):
+    """Where a frame's range or BNO055 attitude came from (FrameRecord.range_source, imu_source)."""
+
+    SAMPLES = "samples"  # the RANGE / IMU samples the host holds around mid-exposure
+    SNAPSHOT = "snapshot"  # the device's own snapshot in the EXPOSURE (protocol 2): the samples were gone
+    NONE = "none"
+
+
 class FrameFlag(enum.StrEnum):
     """Quality flags; a frame can carry several."""
 
@@ -49,6 +57,9 @@ class FrameFlag(enum.StrEnum):
     RESENT = "resent"  # the exposure came back through RESEND (the device resent it after an outage)
     RANGE_SAMPLES_LOST = "range_samples_lost"  # resent, and no range sample near mid came back: none to range it
     TELEMETRY_EXPIRED = "telemetry_expired"  # no pose: the telemetry around mid had left the host's buffers
+    # The device's snapshot in the EXPOSURE stood in for samples the host no longer had (issue 27, protocol 2).
+    RANGE_FROM_SNAPSHOT = "range_from_snapshot"  # no valid range sample near mid: the exposure's own snapshot
+    IMU_FROM_SNAPSHOT = "imu_from_snapshot"  # the snapshot is nearer mid than any IMU sample held
 
 
 OUTAGE_NO_POSE = FrameFlag.TELEMETRY_EXPIRED
@@ -114,11 +125,15 @@ class FrameRecord:
     imu_calib_gyr: Annotated[int | None, Doc("BNO055 gyroscope calibration 0..3")] = None
     imu_calib_acc: Annotated[int | None, Doc("BNO055 accelerometer calibration 0..3")] = None
     imu_calib_mag: Annotated[int | None, Doc("BNO055 magnetometer calibration 0..3")] = None
-    imu_age_ms: Annotated[float | None, Doc("mid minus the nearest IMU sample time", unit="ms")] = None
+    imu_age_ms: Annotated[
+        float | None, Doc("mid minus the nearest IMU sample time (from the snapshot: its age, >= 0)", unit="ms")
+    ] = None
+    imu_source: Annotated[str, Doc("SensorSource of the BNO055 fields: samples, snapshot or none")] = "none"
     # --- LiDAR at exposure
     range_m: Annotated[float | None, Doc("LiDAR distance at mid-exposure (interpolated)", unit="m")] = None
     range_age_ms: Annotated[float | None, Doc("mid minus the nearest valid range acquisition", unit="ms")] = None
     range_valid: Annotated[bool, Doc("a valid LiDAR return bracketed the exposure")] = False
+    range_source: Annotated[str, Doc("SensorSource of range_m: samples, snapshot or none")] = "none"
     # --- derived
     scale_mm_per_px: Annotated[float | None, Doc("ground sample distance at the image centre", unit="mm/px")] = None
     incidence_deg: Annotated[float | None, Doc("angle between optical axis and surface normal", unit="deg")] = None

@@ -39,7 +39,7 @@ from icgt.clocks.device_clock import DeviceClockFilter
 from icgt.geotag.geotagger import GeotagConfig
 from icgt.geotag.record import FrameRecord
 from icgt.ingest.reader import IngestError, LogMessage, Recording, read
-from icgt.protocol.messages import FrameFlags, Message
+from icgt.protocol.messages import Exposure, FrameFlags, Message
 from icgt.recording import layout
 from icgt.sync import SyncConfig, Synchroniser
 
@@ -107,12 +107,24 @@ def _legacy_geotag_config(recording: Recording) -> GeotagConfig:
     return GeotagConfig(**kwargs)
 
 
+_EXPOSURE_FIELDS = [f.name for f in dataclasses.fields(Exposure)]
+ADDED_IN_V2: dict[str, frozenset[str]] = {
+    Exposure.NAME: frozenset(_EXPOSURE_FIELDS[_EXPOSURE_FIELDS.index("duration_us") + 1 :]),
+}
+"""Fields protocol version 2 added, per message: a log of a version-1 device lacks them. They come back as 0,
+which for the EXPOSURE's sensor snapshot means "holds nothing" (snapshot_flags 0)."""
+
+
 def device_message(cls: type[M], data: dict[str, Any]) -> M:
-    """A device message rebuilt from its log record (non-finite floats the recorder left out come back as NaN)."""
+    """A device message rebuilt from its log record (non-finite floats the recorder left out come back as NaN;
+    the fields a version-1 device did not send, `ADDED_IN_V2`, as 0)."""
     kwargs: dict[str, Any] = {}
+    added = ADDED_IN_V2.get(cls.NAME, frozenset())
     for f in dataclasses.fields(cls):  # type: ignore[arg-type]
         if f.name in data:
             kwargs[f.name] = data[f.name]
+        elif f.name in added:
+            kwargs[f.name] = 0
         elif f.type in ("float", float):
             kwargs[f.name] = math.nan  # the recorder leaves non-finite floats out
         else:

@@ -12,8 +12,8 @@ from typing import ClassVar
 
 from icgt.errors import EncodeError
 
-PROTOCOL_VERSION = 1
-TABLE_HASH = 0xEE47777F
+PROTOCOL_VERSION = 2
+TABLE_HASH = 0xCBDF4361
 MAX_FRAME_BYTES = 256
 HEADER_BYTES = 8
 CRC_BYTES = 4
@@ -147,6 +147,15 @@ class ExposureFlags(IntFlag):
     UNSOLICITED = 1 << 2
     END_MISSING = 1 << 3
     FOCUS_CYCLE = 1 << 4
+
+
+class SnapshotFlags(IntFlag):
+    """What an EXPOSURE's sensor snapshot holds. range_valid clear: no valid LiDAR acquisition was held (range fields 0); imu_valid clear: no IMU sample was held (IMU fields 0). *_interpolated: between the two samples that bracket mid-exposure (each within 50 ms of it); clear: the nearest sample, its age in the *_age_us field."""
+
+    RANGE_VALID = 1 << 0
+    RANGE_INTERPOLATED = 1 << 1
+    IMU_VALID = 1 << 2
+    IMU_INTERPOLATED = 1 << 3
 
 
 class RangeFlags(IntFlag):
@@ -326,19 +335,19 @@ class Status(Message):
         return cls(*_S_STATUS.unpack_from(buf, offset))
 
 
-_S_EXPOSURE = struct.Struct('<IBBQQQI')
+_S_EXPOSURE = struct.Struct('<IBBQQQIBHHHBhhhhhhh')
 
 
 @dataclass(slots=True)
 class Exposure(Message):
-    """EXPOSURE: One per trigger, and one per unsolicited feedback pulse. Never shed."""
+    """EXPOSURE: One per trigger, and one per unsolicited feedback pulse. Never shed. Carries the device's sensor snapshot at mid-exposure (since version 2): sent once the range and IMU samples after mid are in, or 50 ms after mid at the latest."""
 
     ID: ClassVar[int] = 0x03
     NAME: ClassVar[str] = "EXPOSURE"
     DIRECTION: ClassVar[str] = "device_to_host"
-    MIN_BODY: ClassVar[int] = 34
-    MAX_BODY: ClassVar[int] = 34
-    UNITS: ClassVar[dict[str, str]] = {"image_index": "count", "camera_id": "1", "flags": "bitmask", "trigger_t_us": "us", "feedback_start_t_us": "us", "feedback_end_t_us": "us", "duration_us": "us"}
+    MIN_BODY: ClassVar[int] = 56
+    MAX_BODY: ClassVar[int] = 56
+    UNITS: ClassVar[dict[str, str]] = {"image_index": "count", "camera_id": "1", "flags": "bitmask", "trigger_t_us": "us", "feedback_start_t_us": "us", "feedback_end_t_us": "us", "duration_us": "us", "snapshot_flags": "bitmask", "range_mm": "mm", "range_age_us": "us", "imu_age_us": "us", "imu_calib_stat": "bitmask", "quat_w_q14": "1/16384", "quat_x_q14": "1/16384", "quat_y_q14": "1/16384", "quat_z_q14": "1/16384", "gyro_x_rad900": "rad/s / 900", "gyro_y_rad900": "rad/s / 900", "gyro_z_rad900": "rad/s / 900"}
 
     image_index: int = 0
     """[count] Monotonic index of the trigger since boot (0 for an unsolicited exposure)."""
@@ -354,9 +363,33 @@ class Exposure(Message):
     """[us] Edge that ends the exposure; 0 if none."""
     duration_us: int = 0
     """[us] feedback_end - feedback_start; 0 if unknown."""
+    snapshot_flags: int = 0
+    """[bitmask] What the sensor snapshot below holds. The snapshot is the device's own view at mid-exposure (feedback start + duration / 2; feedback start alone; else the trigger), kept with the exposure in the history so it survives an outage that outlives the samples."""
+    range_mm: int = 0
+    """[mm] LiDAR distance at mid-exposure from the valid acquisitions (acq_start_t_us) around it: interpolated between the two that bracket mid, else the nearest; 0 when range_valid is clear."""
+    range_age_us: int = 0
+    """[us] Mid-exposure to the nearest acquisition used (interpolated: the nearer of the two); 65535 = 65.535 ms or older."""
+    imu_age_us: int = 0
+    """[us] Mid-exposure to the nearest IMU sample used (its read midpoint; interpolated: the nearer of the two); 65535 = 65.535 ms or older."""
+    imu_calib_stat: int = 0
+    """[bitmask] CALIB_STAT of the nearest IMU sample (as IMU.calib_stat)."""
+    quat_w_q14: int = 0
+    """[1/16384] BNO055 orientation quaternion W at mid-exposure, 16384 = 1 (the BNO055's own scale; normalised after interpolation)."""
+    quat_x_q14: int = 0
+    """[1/16384] Quaternion X, 16384 = 1."""
+    quat_y_q14: int = 0
+    """[1/16384] Quaternion Y, 16384 = 1."""
+    quat_z_q14: int = 0
+    """[1/16384] Quaternion Z, 16384 = 1."""
+    gyro_x_rad900: int = 0
+    """[rad/s / 900] Angular rate X at mid-exposure, 900 = 1 rad/s (the BNO055's rad/s scale; saturates at +-36.4 rad/s)."""
+    gyro_y_rad900: int = 0
+    """[rad/s / 900] Angular rate Y, 900 = 1 rad/s."""
+    gyro_z_rad900: int = 0
+    """[rad/s / 900] Angular rate Z, 900 = 1 rad/s."""
 
     def body(self) -> bytes:
-        return _S_EXPOSURE.pack(self.image_index, self.camera_id, self.flags, self.trigger_t_us, self.feedback_start_t_us, self.feedback_end_t_us, self.duration_us)
+        return _S_EXPOSURE.pack(self.image_index, self.camera_id, self.flags, self.trigger_t_us, self.feedback_start_t_us, self.feedback_end_t_us, self.duration_us, self.snapshot_flags, self.range_mm, self.range_age_us, self.imu_age_us, self.imu_calib_stat, self.quat_w_q14, self.quat_x_q14, self.quat_y_q14, self.quat_z_q14, self.gyro_x_rad900, self.gyro_y_rad900, self.gyro_z_rad900)
 
     @classmethod
     def from_buffer(cls, buf: bytes, offset: int, end: int) -> Exposure:
@@ -938,7 +971,7 @@ MESSAGE_TYPES: dict[int, type[Message]] = {
 FIELD_TYPES: dict[str, tuple[tuple[str, str], ...]] = {
     "HELLO": (("protocol_version", "u8"), ("table_hash", "u32"), ("t_us", "u64"), ("firmware_version", "char[16]"), ("board", "u8"), ("serial_number", "u32"), ("clock_source", "u8"), ("rtc_utc_us_at_boot", "i64"), ("lidar_model", "u8")),
     "STATUS": (("t_us", "u64"), ("capture_state", "u8"), ("sensor_health", "u8"), ("triggers_fired", "u32"), ("exposures_confirmed", "u32"), ("feedback_missing", "u32"), ("feedback_unsolicited", "u32"), ("messages_sent", "u32"), ("dropped_imu", "u32"), ("dropped_range", "u32"), ("dropped_log", "u32"), ("dropped_event", "u32"), ("i2c_errors", "u32"), ("imu_reinits", "u16"), ("lidar_reinits", "u16"), ("rx_frames_ok", "u32"), ("rx_frames_rejected", "u32"), ("rx_seq_missed", "u32"), ("loop_max_us", "u32")),
-    "EXPOSURE": (("image_index", "u32"), ("camera_id", "u8"), ("flags", "u8"), ("trigger_t_us", "u64"), ("feedback_start_t_us", "u64"), ("feedback_end_t_us", "u64"), ("duration_us", "u32")),
+    "EXPOSURE": (("image_index", "u32"), ("camera_id", "u8"), ("flags", "u8"), ("trigger_t_us", "u64"), ("feedback_start_t_us", "u64"), ("feedback_end_t_us", "u64"), ("duration_us", "u32"), ("snapshot_flags", "u8"), ("range_mm", "u16"), ("range_age_us", "u16"), ("imu_age_us", "u16"), ("imu_calib_stat", "u8"), ("quat_w_q14", "i16"), ("quat_x_q14", "i16"), ("quat_y_q14", "i16"), ("quat_z_q14", "i16"), ("gyro_x_rad900", "i16"), ("gyro_y_rad900", "i16"), ("gyro_z_rad900", "i16")),
     "IMU": (("read_start_t_us", "u64"), ("read_end_t_us", "u64"), ("quat_w", "f32"), ("quat_x", "f32"), ("quat_y", "f32"), ("quat_z", "f32"), ("gyro_x_rad_s", "f32"), ("gyro_y_rad_s", "f32"), ("gyro_z_rad_s", "f32"), ("accel_x_m_s2", "f32"), ("accel_y_m_s2", "f32"), ("accel_z_m_s2", "f32"), ("lin_accel_x_m_s2", "f32"), ("lin_accel_y_m_s2", "f32"), ("lin_accel_z_m_s2", "f32"), ("calib_stat", "u8"), ("flags", "u8")),
     "RANGE": (("acq_start_t_us", "u64"), ("read_t_us", "u64"), ("distance_cm", "u16"), ("signal_strength", "u8"), ("flags", "u8")),
     "PPS": (("t_us", "u64"), ("pps_count", "u32")),

@@ -355,7 +355,8 @@ def summarize(data: FlightData) -> list[tuple[str, str]]:
             (
                 "frames resent after an outage",
                 f"{resent}; because of the outage {flags.get(OUTAGE_NO_POSE.value, 0)} without a pose, "
-                f"{flags.get(OUTAGE_NO_RANGE.value, 0)} without a range",
+                f"{flags.get(OUTAGE_NO_RANGE.value, 0)} without a range; "
+                f"{flags.get(FrameFlag.RANGE_FROM_SNAPSHOT.value, 0)} ranged from the device's snapshot",
             )
         )
     for label, values, unit in (

@@ -131,7 +131,7 @@ def typical_cases() -> list[Case]:
     t0 = 1_234_567_890
     examples: list[m.Message] = [
         m.Hello(
-            protocol_version=1,
+            protocol_version=m.PROTOCOL_VERSION,
             table_hash=m.TABLE_HASH,
             t_us=812,
             firmware_version="0.1.0+g1a2b3c",
@@ -203,6 +203,7 @@ def typical_cases() -> list[Case]:
             focus_lead_us=500_000,
             burst_us=2_000_000,
             shutter_pulse_us=20_000,
+            host_timeout_ms=30_000,
         ),
         m.StopCapture(camera_id=0),
         m.Configure(
@@ -243,8 +244,12 @@ def typical_cases() -> list[Case]:
             polarity=0x0B,
             feedback_enabled=1,
             feedback_timeout_us=150_000,
+            host_timeout_ms=30_000,
+            stop_cause=m.StopCause.NONE,
+            stopped_t_us=0,
+            recording_id=0x5EED1234,
         ),
-        m.HostReceived(next_seq=94_000),
+        m.HostReceived(next_seq=94_000, recording_id=0x5EED1234),
     ]
     covered = {type(x) for x in examples}
     missing = set(m.MESSAGE_TYPES.values()) - covered
@@ -371,7 +376,7 @@ def stream_cases() -> list[Case]:
     cases.append(then_ping(Case("unknown_type", False).junk(raw_frame(0x3E, b"", 0), unknown_type=1), 1))
     cases.append(then_ping(Case("type_zero", False).junk(raw_frame(0x00, b"", 0), unknown_type=1), 1))
     cases.append(
-        then_ping(Case("wrong_version", False).junk(raw_frame(m.Ping.ID, ping_body, 0, version=2), wrong_version=1), 1)
+        then_ping(Case("wrong_version", False).junk(raw_frame(m.Ping.ID, ping_body, 0, version=m.PROTOCOL_VERSION + 1), wrong_version=1), 1)
     )
     cases.append(
         then_ping(Case("body_too_long", False).junk(raw_frame(m.Ping.ID, ping_body + b"\x01", 0), bad_length=1), 1)

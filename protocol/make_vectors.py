@@ -375,9 +375,8 @@ def stream_cases() -> list[Case]:
     cases.append(then_ping(between, 1))
     cases.append(then_ping(Case("unknown_type", False).junk(raw_frame(0x3E, b"", 0), unknown_type=1), 1))
     cases.append(then_ping(Case("type_zero", False).junk(raw_frame(0x00, b"", 0), unknown_type=1), 1))
-    cases.append(
-        then_ping(Case("wrong_version", False).junk(raw_frame(m.Ping.ID, ping_body, 0, version=m.PROTOCOL_VERSION + 1), wrong_version=1), 1)
-    )
+    foreign = raw_frame(m.Ping.ID, ping_body, 0, version=m.PROTOCOL_VERSION + 1)
+    cases.append(then_ping(Case("wrong_version", False).junk(foreign, wrong_version=1), 1))
     cases.append(
         then_ping(Case("body_too_long", False).junk(raw_frame(m.Ping.ID, ping_body + b"\x01", 0), bad_length=1), 1)
     )

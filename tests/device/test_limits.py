@@ -69,6 +69,7 @@ def test_derived_values() -> None:
     assert auto_feedback_timeout_s(0.0, None) == 0.5
     assert auto_feedback_timeout_s(0.9, 3600.0) == 2.0
     assert describe_refusal(3, int(Limit.INTERVAL)) == "out_of_range: limit interval (0.05 .. 3600 s)"
+    assert describe_refusal(3, int(Limit.HOST_TIMEOUT)) == "out_of_range: limit host_timeout (0 or 5 .. 86400 s)"
 
 
 # (config overrides, request interval_s, request count, the limit named)

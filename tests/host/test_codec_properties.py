@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from icgt.errors import EncodeError
-from icgt.protocol import MESSAGE_TYPES, Message, StreamDecoder, encode_frame
+from icgt.protocol import MESSAGE_TYPES, PROTOCOL_VERSION, Message, StreamDecoder, encode_frame
 from icgt.protocol.codec import MAX_ENCODED_BYTES
 from icgt.protocol.messages import FIELD_TYPES, Log, Ping
 
@@ -136,7 +136,7 @@ def test_invalid_utf8_text_decodes_with_replacement_characters() -> None:
 
     from cobs import cobs
 
-    raw = struct.pack("<BBBBI", 1, Log.ID, 0, 0, 0) + body
+    raw = struct.pack("<BBBBI", PROTOCOL_VERSION, Log.ID, 0, 0, 0) + body
     wire = cobs.encode(raw + struct.pack("<I", zlib.crc32(raw))) + b"\x00"
     (got,) = StreamDecoder().feed(wire)
     assert got.message.text == "ok \ufffd\ufffd"  # type: ignore[attr-defined]

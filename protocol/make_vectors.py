@@ -131,7 +131,7 @@ def typical_cases() -> list[Case]:
     t0 = 1_234_567_890
     examples: list[m.Message] = [
         m.Hello(
-            protocol_version=1,
+            protocol_version=m.PROTOCOL_VERSION,
             table_hash=m.TABLE_HASH,
             t_us=812,
             firmware_version="0.1.0+g1a2b3c",
@@ -217,6 +217,7 @@ def typical_cases() -> list[Case]:
             focus_lead_us=500_000,
             burst_us=2_000_000,
             shutter_pulse_us=20_000,
+            host_timeout_ms=30_000,
         ),
         m.StopCapture(camera_id=0),
         m.Configure(
@@ -257,8 +258,12 @@ def typical_cases() -> list[Case]:
             polarity=0x0B,
             feedback_enabled=1,
             feedback_timeout_us=150_000,
+            host_timeout_ms=30_000,
+            stop_cause=m.StopCause.NONE,
+            stopped_t_us=0,
+            recording_id=0x5EED1234,
         ),
-        m.HostReceived(next_seq=94_000),
+        m.HostReceived(next_seq=94_000, recording_id=0x5EED1234),
     ]
     covered = {type(x) for x in examples}
     missing = set(m.MESSAGE_TYPES.values()) - covered

@@ -138,6 +138,21 @@ def _cmd_recover(args: argparse.Namespace) -> int:
     return 1 if report.lossy else 0
 
 
+def _cmd_recover_device(args: argparse.Namespace) -> int:
+    from icgt.recorder.recover_device import recover_device
+
+    result = recover_device(args.device, flight_path=args.flight, out=args.out)
+    print(result.describe())
+    if result.exposures_lost:
+        print(
+            f"icgt recover-device: {result.exposures_lost} exposures (or frames of unknown kind) of the range asked "
+            "were no longer in the device's history (overwritten): they are lost",
+            file=sys.stderr,
+        )
+        return 1
+    return 0
+
+
 def _cmd_sim(args: argparse.Namespace) -> int:
     from icgt.sim.scenario import load_scenario
     from icgt.sim.session import SimSession
@@ -241,6 +256,15 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("source", type=Path)
     rec.add_argument("output", type=Path, nargs="?", help="default: SOURCE-recovered.mcap")
     rec.set_defaults(func=_cmd_recover)
+
+    rdev = sub.add_parser(
+        "recover-device",
+        help="fetch what a device plugged in again still holds of a flight whose recording ended mid-outage",
+    )
+    rdev.add_argument("--device", default="/dev/ttyACM0", help="device URL (default /dev/ttyACM0)")
+    rdev.add_argument("--flight", type=Path, help="the flight's log: checked against the device; the frames it lacks")
+    rdev.add_argument("--out", type=Path, help="output .mcap file or folder (default: next to --flight, or here)")
+    rdev.set_defaults(func=_cmd_recover_device)
 
     sim = sub.add_parser("sim", help="run a simulated device, autopilot and camera for a scenario")
     sim.add_argument("scenario", help="scenario name (pier_scan, deck_pass, hover) or TOML file")

@@ -55,8 +55,10 @@ def recorder_config_text(
     *,
     ground_stations: tuple[int, ...] = (GCS_SYSTEM,),
     signing_key_file: Path | None = None,
+    host_timeout_s: float | None = None,
 ) -> str:
-    """The recorder configuration a crew would write for this airframe (from the scenario's camera)."""
+    """The recorder configuration a crew would write for this airframe (from the scenario's camera);
+    `host_timeout_s` None: the default ([capture] host_timeout_s)."""
     cam, cap, sen = sc.camera, sc.camera.capture, sc.sensors
     n = sc.structure.normal
     signing = f'signing_key_file = "{signing_key_file}"' if signing_key_file is not None else ""
@@ -76,6 +78,7 @@ interval_s = {(cap.interval_ms if cap.mode == "interval" else 1000.0 / cap.burst
 focus_lead_s = {cap.focus_ms / 1000.0}
 burst_s = {cap.burst_ms / 1000.0}
 shutter_pulse_s = 0.02
+{"" if host_timeout_s is None else f"host_timeout_s = {host_timeout_s}"}
 
 [sensors]
 feedback_min_lag_s = {feedback_min_lag_s(cam)}

@@ -54,6 +54,8 @@ def test_the_host_states_the_firmwares_numbers() -> None:
     assert c["kImuMaxRateHz"] == CORE.imu_max_rate_hz
     assert (c["kImuFirstFusionMode"], c["kImuLastFusionMode"]) == (CORE.imu_fusion_modes[0], CORE.imu_fusion_modes[-1])
     assert c["kLidarMaxRateHz"] == CORE.lidar_driver_max_rate_hz
+    assert c["kMinHostTimeoutMs"] == round(CORE.min_host_timeout_s * 1e3)
+    assert c["kMaxHostTimeoutMs"] == round(CORE.max_host_timeout_s * 1e3)
     assert (c["kLidarV3Presets"], c["kLidarV3hpPresets"]) == tuple(n for _, n in CORE.lidar_presets)
     for board in (Board.TEENSY36, Board.TEENSY41, Board.SIMULATOR, Board.QEMU_MPS2):
         assert BOARDS[board].min_interval_s == CORE.min_interval_s, board  # one core on every board
@@ -67,6 +69,7 @@ def test_derived_values() -> None:
     assert auto_feedback_timeout_s(0.0, None) == 0.5
     assert auto_feedback_timeout_s(0.9, 3600.0) == 2.0
     assert describe_refusal(3, int(Limit.INTERVAL)) == "out_of_range: limit interval (0.05 .. 3600 s)"
+    assert describe_refusal(3, int(Limit.HOST_TIMEOUT)) == "out_of_range: limit host_timeout (0 or 5 .. 86400 s)"
 
 
 # (config overrides, request interval_s, request count, the limit named)

@@ -33,6 +33,9 @@ BAD: list[tuple[str, str, object]] = [
     ("capture", "focus_lead_s", 11.0),
     ("capture", "burst_s", -2.0),
     ("capture", "shutter_pulse_s", 0.0),
+    ("capture", "host_timeout_s", 4.9),  # under the device's 5 s (limit host_timeout)
+    ("capture", "host_timeout_s", -1.0),
+    ("capture", "host_timeout_s", 1e6),
     ("sensors", "imu_rate_hz", 200),
     ("sensors", "imu_rate_hz", 1.5),
     ("sensors", "imu_mode", "amg"),

@@ -131,6 +131,7 @@ void App::poll() {
   link_up_ = up;
 
   receive(start);
+  watch_capture(ports_.clock.now_us());
   time_sync_.release_due(ports_.clock.now_us(), outbox_);
   timebase_.poll(start);
   drain_exposures(start);
@@ -161,7 +162,10 @@ void App::receive(uint64_t now_us) {
   // frame it completes. The loop runs far faster than the host sends commands.
   for (std::size_t i = 0; i < n; ++i) {
     switch (rx_.push(buf[i])) {
-      case proto::StreamDecoder::Status::frame: on_frame(now_us); break;
+      case proto::StreamDecoder::Status::frame:
+        watchdog_.heard(now_us);  // any valid frame: the host is alive
+        on_frame(now_us);
+        break;
       case proto::StreamDecoder::Status::rejected: on_rejected_frame(); break;
       case proto::StreamDecoder::Status::pending: break;
     }
@@ -202,7 +206,10 @@ void App::on_frame(uint64_t rx_t_us) {
       if (!rx_.decode(cmd)) return;
       const TriggerResult r = cmd.camera_id != 0 ? TriggerResult::out_of_range : trigger_.stop();
       ack(static_cast<ErrorCode>(r), cmd.camera_id != 0 ? static_cast<uint32_t>(proto::Limit::camera_id) : 0);
-      if (r == TriggerResult::ok) log(rx_t_us, proto::LogLevel::info, "capture stopped by host");
+      if (r == TriggerResult::ok) {
+        end_capture(proto::StopCause::host, rx_t_us);
+        log(rx_t_us, proto::LogLevel::info, "capture stopped by host");
+      }
       return;
     }
     case proto::MsgId::CONFIGURE: {
@@ -255,6 +262,7 @@ void App::on_frame(uint64_t rx_t_us) {
       if (!rx_.decode(cmd)) return;
       host_received_seq_ = cmd.next_seq;
       host_received_valid_ = true;
+      recording_id_ = cmd.recording_id;
       ack(ErrorCode::ok, cmd.next_seq);
       return;
     }
@@ -278,6 +286,7 @@ ErrorCode App::start_capture(const proto::StartCapture& cmd, uint64_t now_us, pr
   p.shutter_pulse_us = cmd.shutter_pulse_us;
   const proto::Limit broken = Trigger::check(p);
   if (broken != proto::Limit::none) return refuse(limit, broken);
+  if (!HostWatchdog::valid(cmd.host_timeout_ms)) return refuse(limit, proto::Limit::host_timeout);
   // Pairing is first-in-first-out: it is only unambiguous while the window a feedback edge may
   // arrive in (min lag .. timeout after its trigger) is shorter than the interval. A longer one
   // would let one missed exposure shift every later pair.
@@ -291,6 +300,10 @@ ErrorCode App::start_capture(const proto::StartCapture& cmd, uint64_t now_us, pr
   if (r == TriggerResult::ok) {
     capture_ = cmd;
     capture_start_seq_ = outbox_.next_seq() + static_cast<uint32_t>(outbox_.queued()) + 1;  // after the ACK
+    watchdog_.arm(cmd.host_timeout_ms, now_us);
+    capture_running_ = true;
+    stop_cause_ = proto::StopCause::none;
+    stopped_t_us_ = 0;
     log(now_us, proto::LogLevel::info, "capture started, mode ", cmd.mode, true);
   }
   return static_cast<ErrorCode>(r);
@@ -357,6 +370,29 @@ ErrorCode App::configure(const proto::Configure& cmd, proto::Limit& limit) {
   lidar_enabled_ = want_lidar;
   config_ = next;
   return ErrorCode::ok;
+}
+
+void App::watch_capture(uint64_t now_us) {
+  if (!capture_running_) return;
+  if (trigger_.state() != CaptureState::capturing) {
+    end_capture(proto::StopCause::done, now_us);  // single or count ran out
+    return;
+  }
+  if (!watchdog_.expired(now_us)) return;
+  // The shot schedule may have run out in the alarm interrupt since the state was read: then it is done.
+  const bool stopped = trigger_.stop() == TriggerResult::ok;
+  end_capture(stopped ? proto::StopCause::host_silent : proto::StopCause::done, now_us);
+  if (stopped) {
+    log(now_us, proto::LogLevel::warning, "capture stopped by the device: no frame from the host for ms ",
+        watchdog_.timeout_ms(), true);
+  }
+}
+
+void App::end_capture(proto::StopCause cause, uint64_t now_us) {
+  capture_running_ = false;
+  watchdog_.disarm();
+  stop_cause_ = cause;
+  stopped_t_us_ = now_us;
 }
 
 bool App::i2c_credit_left(uint64_t now_us) {
@@ -579,6 +615,10 @@ proto::DeviceState App::device_state(uint64_t now_us) const {
   d.polarity = config_.polarity;
   d.feedback_enabled = pairing_.feedback_enabled() ? 1 : 0;
   d.feedback_timeout_us = config_.feedback_timeout_us;
+  d.host_timeout_ms = capture_.host_timeout_ms;
+  d.stop_cause = static_cast<uint8_t>(stop_cause_);
+  d.stopped_t_us = stopped_t_us_;
+  d.recording_id = recording_id_;
   return d;
 }
 

@@ -12,6 +12,7 @@
 
 #include "core/bno055.hpp"
 #include "core/exposure_pairing.hpp"
+#include "core/host_watchdog.hpp"
 #include "core/lidar_lite.hpp"
 #include "core/outbox.hpp"
 #include "core/snapshot.hpp"
@@ -101,6 +102,10 @@ class App {
   [[nodiscard]] std::size_t held_exposures() const { return held_count_; }
   [[nodiscard]] const DeviceConfig& config() const { return config_; }
   [[nodiscard]] const proto::DecoderStats& rx_stats() const { return rx_.stats(); }
+  [[nodiscard]] const HostWatchdog& host_watchdog() const { return watchdog_; }
+  // Why the last capture ended, and when (DEVICE_STATE); none / 0 while one runs or before the first.
+  [[nodiscard]] proto::StopCause stop_cause() const { return stop_cause_; }
+  [[nodiscard]] uint64_t stopped_t_us() const { return stopped_t_us_; }
   [[nodiscard]] proto::Status status(uint64_t now_us);
   // What a (re)connecting host needs to take over: sent after every HELLO.
   [[nodiscard]] proto::DeviceState device_state(uint64_t now_us) const;
@@ -116,6 +121,9 @@ class App {
   // Both set `limit` to the limit a refusal broke (ACK.detail), none otherwise.
   [[nodiscard]] proto::ErrorCode start_capture(const proto::StartCapture& cmd, uint64_t now_us, proto::Limit& limit);
   [[nodiscard]] proto::ErrorCode configure(const proto::Configure& cmd, proto::Limit& limit);
+  // Ends a capture whose host went silent (HostWatchdog) and notes one that finished by itself.
+  void watch_capture(uint64_t now_us);
+  void end_capture(proto::StopCause cause, uint64_t now_us);
   void step_sensors(uint64_t now_us);
   [[nodiscard]] bool i2c_credit_left(uint64_t now_us);
   void spend_i2c(uint64_t from_us);
@@ -147,6 +155,7 @@ class App {
   HeldExposure held_[kHeldExposures]{};
   std::size_t held_head_ = 0;
   std::size_t held_count_ = 0;
+  HostWatchdog watchdog_;
   proto::StreamDecoder rx_;
 
   bool imu_enabled_;
@@ -163,6 +172,10 @@ class App {
   uint32_t capture_start_seq_ = 0;
   uint32_t host_received_seq_ = 0;
   bool host_received_valid_ = false;
+  uint32_t recording_id_ = 0;  // the last HOST_RECEIVED's
+  bool capture_running_ = false;  // a capture started and has not been seen to end yet
+  proto::StopCause stop_cause_ = proto::StopCause::none;
+  uint64_t stopped_t_us_ = 0;
   Bno055State last_imu_state_ = Bno055State::initialising;
   LidarState last_lidar_state_ = LidarState::configuring;
 };

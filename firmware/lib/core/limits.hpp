@@ -22,6 +22,12 @@ inline constexpr uint32_t kMaxIntervalUs = 3'600'000'000u;
 inline constexpr uint32_t kMinPulseUs = 1'000;
 inline constexpr uint32_t kMaxPulseUs = 1'000'000;
 
+// Host silence (START_CAPTURE.host_timeout_ms, 0 = never). A live host sends a frame every second at
+// least (HOST_RECEIVED, and TIME_SYNC faster): 5 s is five of them missed in a row, never a slow loop.
+// 24 h is longer than any battery.
+inline constexpr uint32_t kMinHostTimeoutMs = 5'000;
+inline constexpr uint32_t kMaxHostTimeoutMs = 86'400'000;
+
 // Exposure pairing (CONFIGURE.feedback_timeout_us, feedback_min_lag_us).
 inline constexpr uint32_t kMinFeedbackTimeoutUs = 1'000;
 inline constexpr uint32_t kMaxFeedbackTimeoutUs = 2'000'000;

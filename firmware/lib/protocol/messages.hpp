@@ -11,7 +11,7 @@
 namespace icgt::proto {
 
 inline constexpr uint8_t kProtocolVersion = 2;
-inline constexpr uint32_t kTableHash = 0xCBDF4361u;
+inline constexpr uint32_t kTableHash = 0xC96AB236u;
 inline constexpr std::size_t kMaxFrameBytes = 256;
 inline constexpr std::size_t kHeaderBytes = 8;
 inline constexpr std::size_t kCrcBytes = 4;
@@ -78,15 +78,15 @@ enum class MsgId : uint8_t {
     case 0x08: min_bytes = 10; max_bytes = 10; return true;
     case 0x09: min_bytes = 9; max_bytes = 209; return true;
     case 0x0A: min_bytes = 32; max_bytes = 32; return true;
-    case 0x0B: min_bytes = 62; max_bytes = 62; return true;
-    case 0x40: min_bytes = 22; max_bytes = 22; return true;
+    case 0x0B: min_bytes = 79; max_bytes = 79; return true;
+    case 0x40: min_bytes = 26; max_bytes = 26; return true;
     case 0x41: min_bytes = 1; max_bytes = 1; return true;
     case 0x42: min_bytes = 20; max_bytes = 20; return true;
     case 0x43: min_bytes = 8; max_bytes = 8; return true;
     case 0x44: min_bytes = 8; max_bytes = 8; return true;
     case 0x45: min_bytes = 4; max_bytes = 4; return true;
     case 0x46: min_bytes = 6; max_bytes = 6; return true;
-    case 0x47: min_bytes = 4; max_bytes = 4; return true;
+    case 0x47: min_bytes = 8; max_bytes = 8; return true;
     default: return false;
   }
 }
@@ -169,6 +169,15 @@ enum class Limit : uint8_t {
   imu_missing = 18,
   lidar_missing = 19,
   feedback_line_missing = 20,
+  host_timeout = 21,
+};
+
+// Why the last capture ended (DEVICE_STATE).
+enum class StopCause : uint8_t {
+  none = 0,
+  host = 1,
+  done = 2,
+  host_silent = 3,
 };
 
 // LIDAR-Lite variant fitted.
@@ -860,8 +869,8 @@ struct ResendLost {
 struct DeviceState {
   static constexpr MsgId kId = MsgId::DEVICE_STATE;
   static constexpr const char* kName = "DEVICE_STATE";
-  static constexpr std::size_t kMinBodyBytes = 62;
-  static constexpr std::size_t kMaxBodyBytes = 62;
+  static constexpr std::size_t kMinBodyBytes = 79;
+  static constexpr std::size_t kMaxBodyBytes = 79;
   uint64_t t_us{};  // [us] Device clock when sent.
   uint8_t capture_state{};  // [enum] Trigger state.
   uint8_t mode{};  // [enum] The running (or last) capture's mode; 0 if none since boot.
@@ -882,10 +891,14 @@ struct DeviceState {
   uint8_t polarity{};  // [bitmask] Configured line polarity.
   uint8_t feedback_enabled{};  // [1] 1 = feedback line in use.
   uint32_t feedback_timeout_us{};  // [us] Configured feedback timeout.
+  uint32_t host_timeout_ms{};  // [ms] The capture's host_timeout_ms (0 = never stops by itself).
+  uint8_t stop_cause{};  // [enum] Why the last capture ended: none while it runs (or if none ran since boot), host (STOP_CAPTURE), done (single or count finished), host_silent (no host frame for host_timeout_ms).
+  uint64_t stopped_t_us{};  // [us] Device clock when the last capture ended; 0 while a capture runs, or if none ended since boot.
+  uint32_t recording_id{};  // [1] The last HOST_RECEIVED's recording_id: the host log the frames before host_received_seq are in (0 = none said).
 
   // Writes the body into out; returns the bytes written, 0 if cap is too small.
   [[nodiscard]] std::size_t encode(uint8_t* out, std::size_t cap) const {
-    const std::size_t n = 62u;
+    const std::size_t n = 79u;
     if (n > cap) return 0;
     wire::put(out + 0, t_us);
     wire::put(out + 8, capture_state);
@@ -907,6 +920,10 @@ struct DeviceState {
     wire::put(out + 56, polarity);
     wire::put(out + 57, feedback_enabled);
     wire::put(out + 58, feedback_timeout_us);
+    wire::put(out + 62, host_timeout_ms);
+    wire::put(out + 66, stop_cause);
+    wire::put(out + 67, stopped_t_us);
+    wire::put(out + 75, recording_id);
     return n;
   }
 
@@ -933,6 +950,10 @@ struct DeviceState {
     polarity = wire::get<uint8_t>(in + 56);
     feedback_enabled = wire::get<uint8_t>(in + 57);
     feedback_timeout_us = wire::get<uint32_t>(in + 58);
+    host_timeout_ms = wire::get<uint32_t>(in + 62);
+    stop_cause = wire::get<uint8_t>(in + 66);
+    stopped_t_us = wire::get<uint64_t>(in + 67);
+    recording_id = wire::get<uint32_t>(in + 75);
     return true;
   }
 
@@ -959,6 +980,10 @@ struct DeviceState {
     v("polarity", polarity);
     v("feedback_enabled", feedback_enabled);
     v("feedback_timeout_us", feedback_timeout_us);
+    v("host_timeout_ms", host_timeout_ms);
+    v("stop_cause", stop_cause);
+    v("stopped_t_us", stopped_t_us);
+    v("recording_id", recording_id);
   }
 };
 
@@ -966,8 +991,8 @@ struct DeviceState {
 struct StartCapture {
   static constexpr MsgId kId = MsgId::START_CAPTURE;
   static constexpr const char* kName = "START_CAPTURE";
-  static constexpr std::size_t kMinBodyBytes = 22;
-  static constexpr std::size_t kMaxBodyBytes = 22;
+  static constexpr std::size_t kMinBodyBytes = 26;
+  static constexpr std::size_t kMaxBodyBytes = 26;
   uint8_t mode{};  // [enum] interval, focus_burst (the paper's cycle), single or count.
   uint8_t camera_id{};  // [1] Camera port.
   uint32_t interval_us{};  // [us] Time between shutter pulses (interval, focus_burst, count). 50 ms .. 3600 s.
@@ -975,10 +1000,11 @@ struct StartCapture {
   uint32_t focus_lead_us{};  // [us] Focus (half-press) asserted this long before the first shot of each burst; 0 = no focus line.
   uint32_t burst_us{};  // [us] focus_burst: length of the shooting phase of each cycle.
   uint32_t shutter_pulse_us{};  // [us] Width of the shutter pulse. 1 ms .. 1 s, and less than interval_us.
+  uint32_t host_timeout_ms{};  // [ms] The device stops this capture by itself once no valid frame has come from the host for this long (its recorder died, or the cable is out): the camera does not shoot on with nobody logging. 0 = never (the camera goes on); otherwise 5 s .. 24 h.
 
   // Writes the body into out; returns the bytes written, 0 if cap is too small.
   [[nodiscard]] std::size_t encode(uint8_t* out, std::size_t cap) const {
-    const std::size_t n = 22u;
+    const std::size_t n = 26u;
     if (n > cap) return 0;
     wire::put(out + 0, mode);
     wire::put(out + 1, camera_id);
@@ -987,6 +1013,7 @@ struct StartCapture {
     wire::put(out + 10, focus_lead_us);
     wire::put(out + 14, burst_us);
     wire::put(out + 18, shutter_pulse_us);
+    wire::put(out + 22, host_timeout_ms);
     return n;
   }
 
@@ -1000,6 +1027,7 @@ struct StartCapture {
     focus_lead_us = wire::get<uint32_t>(in + 10);
     burst_us = wire::get<uint32_t>(in + 14);
     shutter_pulse_us = wire::get<uint32_t>(in + 18);
+    host_timeout_ms = wire::get<uint32_t>(in + 22);
     return true;
   }
 
@@ -1013,6 +1041,7 @@ struct StartCapture {
     v("focus_lead_us", focus_lead_us);
     v("burst_us", burst_us);
     v("shutter_pulse_us", shutter_pulse_us);
+    v("host_timeout_ms", host_timeout_ms);
   }
 };
 
@@ -1244,15 +1273,17 @@ struct Resend {
 struct HostReceived {
   static constexpr MsgId kId = MsgId::HOST_RECEIVED;
   static constexpr const char* kName = "HOST_RECEIVED";
-  static constexpr std::size_t kMinBodyBytes = 4;
-  static constexpr std::size_t kMaxBodyBytes = 4;
+  static constexpr std::size_t kMinBodyBytes = 8;
+  static constexpr std::size_t kMaxBodyBytes = 8;
   uint32_t next_seq{};  // [count] First device sequence number the host does not have yet.
+  uint32_t recording_id{};  // [1] The host's id of the log those frames are in (nonzero; 0 = not said): DEVICE_STATE gives it back, so a later host knows which recording the frames the device still holds follow.
 
   // Writes the body into out; returns the bytes written, 0 if cap is too small.
   [[nodiscard]] std::size_t encode(uint8_t* out, std::size_t cap) const {
-    const std::size_t n = 4u;
+    const std::size_t n = 8u;
     if (n > cap) return 0;
     wire::put(out + 0, next_seq);
+    wire::put(out + 4, recording_id);
     return n;
   }
 
@@ -1260,6 +1291,7 @@ struct HostReceived {
   [[nodiscard]] bool decode(const uint8_t* in, std::size_t len) {
     if (len != kMinBodyBytes) return false;
     next_seq = wire::get<uint32_t>(in + 0);
+    recording_id = wire::get<uint32_t>(in + 4);
     return true;
   }
 
@@ -1267,6 +1299,7 @@ struct HostReceived {
   template <class Visitor>
   void visit(Visitor&& v) const {
     v("next_seq", next_seq);
+    v("recording_id", recording_id);
   }
 };
 

@@ -17,6 +17,8 @@ Sources:
   because a longer window would let one missed exposure shift the pairing of every later one. Without
   an explicit timeout it is derived per capture: shortest lag + 7/8 of the interval (single shot: + 0.5 s),
   at most 2 s.
+- host silence (firmware/lib/core/host_watchdog.hpp): a capture stops by itself once the host has sent no
+  frame for its host timeout, 5 s .. 24 h, or never (0). A live host sends one every second at least.
 - BNO055: fusion output 100 Hz (Bosch BNO055 datasheet), fusion modes 0x08 (IMUPLUS) .. 0x0C (NDOF).
 - LIDAR-Lite: the driver paces at most 500 Hz; what the part delivers with a preset is Garmin's
   acquisition time plus one 200 us poll (v3 manual: 270 Hz typical at the default preset, v3HP manual:
@@ -41,6 +43,7 @@ __all__ = [
     "auto_feedback_timeout_s",
     "check_capture",
     "check_feedback",
+    "check_host_timeout",
     "check_sensors",
     "describe_refusal",
     "for_board",
@@ -77,6 +80,8 @@ class BoardLimits:
     imu_fusion_modes: tuple[int, ...] = (0x08, 0x09, 0x0A, 0x0B, 0x0C)
     lidar_driver_max_rate_hz: int = 500
     lidar_presets: tuple[tuple[LidarModel, int], ...] = ((LidarModel.V3, 6), (LidarModel.V3HP, 7))
+    min_host_timeout_s: float = 5.0  # START_CAPTURE.host_timeout_ms; 0 = never (the camera goes on)
+    max_host_timeout_s: float = 86_400.0
     max_count: int = 0xFFFF_FFFF  # START_CAPTURE.count is a u32
     alarm_min_delay_us: float = 1.0  # the shortest alarm delay: far below any limit above
     note: str = ""
@@ -152,6 +157,16 @@ def check_feedback(timeout_s: float | None, min_lag_s: float, limits: BoardLimit
         raise _fail(
             Limit.FEEDBACK_MIN_LAG,
             f"feedback_min_lag_s {min_lag_s:g}: must be below feedback_timeout_s ({timeout_s:g} s)",
+        )
+
+
+def check_host_timeout(timeout_s: float, limits: BoardLimits = CORE) -> None:
+    """START_CAPTURE's host timeout: 0 (never stop by itself) or min_host_timeout_s .. max_host_timeout_s."""
+    if timeout_s != 0.0 and not limits.min_host_timeout_s <= timeout_s <= limits.max_host_timeout_s:
+        raise _fail(
+            Limit.HOST_TIMEOUT,
+            f"host_timeout_s {timeout_s:g}: allowed 0 (never: the camera goes on without a host) or "
+            f"{limits.min_host_timeout_s:g} .. {limits.max_host_timeout_s:g} s",
         )
 
 
@@ -274,6 +289,7 @@ def describe_refusal(error_code: int, detail: int, limits: BoardLimits = CORE) -
         Limit.FEEDBACK_MIN_LAG: f"0 .. {limits.max_feedback_min_lag_s:g} s and below the timeout",
         Limit.IMU_RATE: f"0 .. {limits.imu_max_rate_hz} Hz",
         Limit.RANGE_RATE: f"0 .. {limits.lidar_driver_max_rate_hz} Hz",
+        Limit.HOST_TIMEOUT: f"0 or {limits.min_host_timeout_s:g} .. {limits.max_host_timeout_s:g} s",
     }
     rule = ranges.get(limit)
     return f"{code}: limit {limit.name.lower()}" + (f" ({rule})" if rule else "")

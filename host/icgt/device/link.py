@@ -166,6 +166,9 @@ class DeviceLink:
         self._received_marks: list[tuple[int, int]] = []  # (host ns, HOST_RECEIVED value) not sent yet
         self._next_mark_ns = 0
         self.reads = 0  # read calls that returned bytes (what batching saves)
+        # The owner's log, named in every HOST_RECEIVED (nonzero; 0: none): the device gives it back in
+        # DEVICE_STATE, so a later host knows which recording the frames it still holds follow.
+        self.recording_id = 0
         # TIME_SYNC sent by the reader itself, every this many seconds (see _time_sync_if_due); None: only
         # when the owner calls request_time_sync(). The owner may change it at any time (a float, set whole).
         self.time_sync_interval_s: float | None = None
@@ -474,7 +477,7 @@ class DeviceLink:
             return
         self._received_marks = [m for m in self._received_marks if now_ns - m[0] < HOST_RECEIVED_LAG_NS]
         with contextlib.suppress(DeviceLinkError):
-            self.send(HostReceived(next_seq=due[-1][1]))
+            self.send(HostReceived(next_seq=due[-1][1], recording_id=self.recording_id))
 
     def _pause(self, now_ns: int) -> None:
         """Between two reads, unless a reply is awaited: sleep `batch_s`, so that one read takes what the

@@ -13,7 +13,7 @@ from typing import ClassVar
 from icgt.errors import EncodeError
 
 PROTOCOL_VERSION = 2
-TABLE_HASH = 0xCBDF4361
+TABLE_HASH = 0xC96AB236
 MAX_FRAME_BYTES = 256
 HEADER_BYTES = 8
 CRC_BYTES = 4
@@ -129,6 +129,16 @@ class Limit(IntEnum):
     IMU_MISSING = 18
     LIDAR_MISSING = 19
     FEEDBACK_LINE_MISSING = 20
+    HOST_TIMEOUT = 21
+
+
+class StopCause(IntEnum):
+    """Why the last capture ended (DEVICE_STATE)."""
+
+    NONE = 0
+    HOST = 1
+    DONE = 2
+    HOST_SILENT = 3
 
 
 class LidarModel(IntEnum):
@@ -648,7 +658,7 @@ class ResendLost(Message):
         return cls(*_S_RESEND_LOST.unpack_from(buf, offset))
 
 
-_S_DEVICE_STATE = struct.Struct('<QBBIIIIIIIIIIBHHBBBI')
+_S_DEVICE_STATE = struct.Struct('<QBBIIIIIIIIIIBHHBBBIIBQI')
 
 
 @dataclass(slots=True)
@@ -658,9 +668,9 @@ class DeviceState(Message):
     ID: ClassVar[int] = 0x0B
     NAME: ClassVar[str] = "DEVICE_STATE"
     DIRECTION: ClassVar[str] = "device_to_host"
-    MIN_BODY: ClassVar[int] = 62
-    MAX_BODY: ClassVar[int] = 62
-    UNITS: ClassVar[dict[str, str]] = {"t_us": "us", "capture_state": "enum", "mode": "enum", "interval_us": "us", "count": "count", "focus_lead_us": "us", "burst_us": "us", "shutter_pulse_us": "us", "triggers_fired": "count", "capture_start_seq": "count", "next_seq": "count", "history_first_seq": "count", "host_received_seq": "count", "host_received_valid": "1", "imu_rate_hz": "Hz", "range_rate_hz": "Hz", "lidar_model": "enum", "polarity": "bitmask", "feedback_enabled": "1", "feedback_timeout_us": "us"}
+    MIN_BODY: ClassVar[int] = 79
+    MAX_BODY: ClassVar[int] = 79
+    UNITS: ClassVar[dict[str, str]] = {"t_us": "us", "capture_state": "enum", "mode": "enum", "interval_us": "us", "count": "count", "focus_lead_us": "us", "burst_us": "us", "shutter_pulse_us": "us", "triggers_fired": "count", "capture_start_seq": "count", "next_seq": "count", "history_first_seq": "count", "host_received_seq": "count", "host_received_valid": "1", "imu_rate_hz": "Hz", "range_rate_hz": "Hz", "lidar_model": "enum", "polarity": "bitmask", "feedback_enabled": "1", "feedback_timeout_us": "us", "host_timeout_ms": "ms", "stop_cause": "enum", "stopped_t_us": "us", "recording_id": "1"}
 
     t_us: int = 0
     """[us] Device clock when sent."""
@@ -702,16 +712,24 @@ class DeviceState(Message):
     """[1] 1 = feedback line in use."""
     feedback_timeout_us: int = 0
     """[us] Configured feedback timeout."""
+    host_timeout_ms: int = 0
+    """[ms] The capture's host_timeout_ms (0 = never stops by itself)."""
+    stop_cause: int = 0
+    """[enum] Why the last capture ended: none while it runs (or if none ran since boot), host (STOP_CAPTURE), done (single or count finished), host_silent (no host frame for host_timeout_ms)."""
+    stopped_t_us: int = 0
+    """[us] Device clock when the last capture ended; 0 while a capture runs, or if none ended since boot."""
+    recording_id: int = 0
+    """[1] The last HOST_RECEIVED's recording_id: the host log the frames before host_received_seq are in (0 = none said)."""
 
     def body(self) -> bytes:
-        return _S_DEVICE_STATE.pack(self.t_us, self.capture_state, self.mode, self.interval_us, self.count, self.focus_lead_us, self.burst_us, self.shutter_pulse_us, self.triggers_fired, self.capture_start_seq, self.next_seq, self.history_first_seq, self.host_received_seq, self.host_received_valid, self.imu_rate_hz, self.range_rate_hz, self.lidar_model, self.polarity, self.feedback_enabled, self.feedback_timeout_us)
+        return _S_DEVICE_STATE.pack(self.t_us, self.capture_state, self.mode, self.interval_us, self.count, self.focus_lead_us, self.burst_us, self.shutter_pulse_us, self.triggers_fired, self.capture_start_seq, self.next_seq, self.history_first_seq, self.host_received_seq, self.host_received_valid, self.imu_rate_hz, self.range_rate_hz, self.lidar_model, self.polarity, self.feedback_enabled, self.feedback_timeout_us, self.host_timeout_ms, self.stop_cause, self.stopped_t_us, self.recording_id)
 
     @classmethod
     def from_buffer(cls, buf: bytes, offset: int, end: int) -> DeviceState:
         return cls(*_S_DEVICE_STATE.unpack_from(buf, offset))
 
 
-_S_START_CAPTURE = struct.Struct('<BBIIIII')
+_S_START_CAPTURE = struct.Struct('<BBIIIIII')
 
 
 @dataclass(slots=True)
@@ -721,9 +739,9 @@ class StartCapture(Message):
     ID: ClassVar[int] = 0x40
     NAME: ClassVar[str] = "START_CAPTURE"
     DIRECTION: ClassVar[str] = "host_to_device"
-    MIN_BODY: ClassVar[int] = 22
-    MAX_BODY: ClassVar[int] = 22
-    UNITS: ClassVar[dict[str, str]] = {"mode": "enum", "camera_id": "1", "interval_us": "us", "count": "count", "focus_lead_us": "us", "burst_us": "us", "shutter_pulse_us": "us"}
+    MIN_BODY: ClassVar[int] = 26
+    MAX_BODY: ClassVar[int] = 26
+    UNITS: ClassVar[dict[str, str]] = {"mode": "enum", "camera_id": "1", "interval_us": "us", "count": "count", "focus_lead_us": "us", "burst_us": "us", "shutter_pulse_us": "us", "host_timeout_ms": "ms"}
 
     mode: int = 0
     """[enum] interval, focus_burst (the paper's cycle), single or count."""
@@ -739,9 +757,11 @@ class StartCapture(Message):
     """[us] focus_burst: length of the shooting phase of each cycle."""
     shutter_pulse_us: int = 0
     """[us] Width of the shutter pulse. 1 ms .. 1 s, and less than interval_us."""
+    host_timeout_ms: int = 0
+    """[ms] The device stops this capture by itself once no valid frame has come from the host for this long (its recorder died, or the cable is out): the camera does not shoot on with nobody logging. 0 = never (the camera goes on); otherwise 5 s .. 24 h."""
 
     def body(self) -> bytes:
-        return _S_START_CAPTURE.pack(self.mode, self.camera_id, self.interval_us, self.count, self.focus_lead_us, self.burst_us, self.shutter_pulse_us)
+        return _S_START_CAPTURE.pack(self.mode, self.camera_id, self.interval_us, self.count, self.focus_lead_us, self.burst_us, self.shutter_pulse_us, self.host_timeout_ms)
 
     @classmethod
     def from_buffer(cls, buf: bytes, offset: int, end: int) -> StartCapture:
@@ -920,7 +940,7 @@ class Resend(Message):
         return cls(*_S_RESEND.unpack_from(buf, offset))
 
 
-_S_HOST_RECEIVED = struct.Struct('<I')
+_S_HOST_RECEIVED = struct.Struct('<II')
 
 
 @dataclass(slots=True)
@@ -930,15 +950,17 @@ class HostReceived(Message):
     ID: ClassVar[int] = 0x47
     NAME: ClassVar[str] = "HOST_RECEIVED"
     DIRECTION: ClassVar[str] = "host_to_device"
-    MIN_BODY: ClassVar[int] = 4
-    MAX_BODY: ClassVar[int] = 4
-    UNITS: ClassVar[dict[str, str]] = {"next_seq": "count"}
+    MIN_BODY: ClassVar[int] = 8
+    MAX_BODY: ClassVar[int] = 8
+    UNITS: ClassVar[dict[str, str]] = {"next_seq": "count", "recording_id": "1"}
 
     next_seq: int = 0
     """[count] First device sequence number the host does not have yet."""
+    recording_id: int = 0
+    """[1] The host's id of the log those frames are in (nonzero; 0 = not said): DEVICE_STATE gives it back, so a later host knows which recording the frames the device still holds follow."""
 
     def body(self) -> bytes:
-        return _S_HOST_RECEIVED.pack(self.next_seq)
+        return _S_HOST_RECEIVED.pack(self.next_seq, self.recording_id)
 
     @classmethod
     def from_buffer(cls, buf: bytes, offset: int, end: int) -> HostReceived:
@@ -979,14 +1001,14 @@ FIELD_TYPES: dict[str, tuple[tuple[str, str], ...]] = {
     "ACK": (("request_seq", "u32"), ("request_type", "u8"), ("error_code", "u8"), ("detail", "u32")),
     "LOG": (("t_us", "u64"), ("level", "u8"), ("text", "str[200]")),
     "RESEND_LOST": (("first_seq", "u32"), ("count", "u32"), ("resent", "u32"), ("exposures", "u32"), ("pps", "u32"), ("samples", "u32"), ("other", "u32"), ("unknown", "u32")),
-    "DEVICE_STATE": (("t_us", "u64"), ("capture_state", "u8"), ("mode", "u8"), ("interval_us", "u32"), ("count", "u32"), ("focus_lead_us", "u32"), ("burst_us", "u32"), ("shutter_pulse_us", "u32"), ("triggers_fired", "u32"), ("capture_start_seq", "u32"), ("next_seq", "u32"), ("history_first_seq", "u32"), ("host_received_seq", "u32"), ("host_received_valid", "u8"), ("imu_rate_hz", "u16"), ("range_rate_hz", "u16"), ("lidar_model", "u8"), ("polarity", "u8"), ("feedback_enabled", "u8"), ("feedback_timeout_us", "u32")),
-    "START_CAPTURE": (("mode", "u8"), ("camera_id", "u8"), ("interval_us", "u32"), ("count", "u32"), ("focus_lead_us", "u32"), ("burst_us", "u32"), ("shutter_pulse_us", "u32")),
+    "DEVICE_STATE": (("t_us", "u64"), ("capture_state", "u8"), ("mode", "u8"), ("interval_us", "u32"), ("count", "u32"), ("focus_lead_us", "u32"), ("burst_us", "u32"), ("shutter_pulse_us", "u32"), ("triggers_fired", "u32"), ("capture_start_seq", "u32"), ("next_seq", "u32"), ("history_first_seq", "u32"), ("host_received_seq", "u32"), ("host_received_valid", "u8"), ("imu_rate_hz", "u16"), ("range_rate_hz", "u16"), ("lidar_model", "u8"), ("polarity", "u8"), ("feedback_enabled", "u8"), ("feedback_timeout_us", "u32"), ("host_timeout_ms", "u32"), ("stop_cause", "u8"), ("stopped_t_us", "u64"), ("recording_id", "u32")),
+    "START_CAPTURE": (("mode", "u8"), ("camera_id", "u8"), ("interval_us", "u32"), ("count", "u32"), ("focus_lead_us", "u32"), ("burst_us", "u32"), ("shutter_pulse_us", "u32"), ("host_timeout_ms", "u32")),
     "STOP_CAPTURE": (("camera_id", "u8"),),
     "CONFIGURE": (("imu_rate_hz", "u16"), ("imu_mode", "u8"), ("imu_ext_crystal", "u8"), ("range_rate_hz", "u16"), ("lidar_model", "u8"), ("lidar_preset", "u8"), ("lidar_bias_every", "u16"), ("polarity", "u8"), ("feedback_enabled", "u8"), ("feedback_timeout_us", "u32"), ("feedback_min_lag_us", "u32")),
     "TIME_SYNC": (("host_t_ns", "u64"),),
     "SET_TIME": (("utc_us", "i64"),),
     "PING": (("nonce", "u32"),),
     "RESEND": (("first_seq", "u32"), ("count", "u16")),
-    "HOST_RECEIVED": (("next_seq", "u32"),),
+    "HOST_RECEIVED": (("next_seq", "u32"), ("recording_id", "u32")),
 }
 """Wire type of every field, by message name, in wire order."""

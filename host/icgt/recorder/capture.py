@@ -103,6 +103,7 @@ def start_command(
         focus_lead_us=_us(c.focus_lead_s) if burst else 0,
         burst_us=_us(c.burst_s) if burst else 0,
         shutter_pulse_us=_us(c.shutter_pulse_s),
+        host_timeout_ms=round(c.host_timeout_s * 1e3),
     )
     return cmd, mode
 

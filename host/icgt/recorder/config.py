@@ -34,6 +34,8 @@ Example (all keys optional; these are the defaults)::
     focus_lead_s = 0.5
     burst_s = 2.0
     shutter_pulse_s = 0.02
+    host_timeout_s = 600.0         # the device stops capture by itself after this long without a word from
+                                   # the recorder (it died, the cable came out); 0: never, the camera goes on
 
     [sensors]
     imu_rate_hz = 100
@@ -71,7 +73,15 @@ from typing import Annotated, Any, Literal
 import msgspec
 from msgspec import Meta
 
-from icgt.device.limits import CORE, BoardLimits, LimitError, check_capture, check_feedback, check_sensors
+from icgt.device.limits import (
+    CORE,
+    BoardLimits,
+    LimitError,
+    check_capture,
+    check_feedback,
+    check_host_timeout,
+    check_sensors,
+)
 from icgt.errors import IcgtError
 from icgt.geotag import GeotagConfig
 from icgt.protocol.messages import LidarModel
@@ -95,6 +105,7 @@ class ConfigError(IcgtError):
 
 # Limits the firmware enforces (firmware/lib/core: trigger, exposure pairing, BNO055 and LIDAR-Lite
 # drivers) and the wire types of CONFIGURE / START_CAPTURE: refused here, before anything is contacted.
+HOST_TIMEOUT_DEFAULT_S = 600.0  # [capture] host_timeout_s (see CaptureSection)
 _SystemId = Annotated[int, Meta(ge=1, le=255)]
 _ComponentId = Annotated[int, Meta(ge=1, le=255)]
 
@@ -128,8 +139,18 @@ class CaptureSection(_Section, frozen=True, kw_only=True):
     focus_lead_s: Annotated[float, Meta(ge=0.0, le=10.0)] = 0.5
     burst_s: Annotated[float, Meta(ge=0.0, le=3600.0)] = 2.0
     shutter_pulse_s: Annotated[float, Meta(ge=0.001, le=1.0)] = 0.02
+    # The device stops a capture by itself once this recorder has been silent this long (it died, or the cable
+    # came out): the camera does not shoot on with nobody logging. 0: never (the camera goes on); 5 .. 86400 s.
+    # 600 s: a cable back within 10 minutes costs nothing (every exposure comes back by RESEND), and at 5 fps
+    # the device's history holds 11.4 min of exposures (Teensy 4.1), so every exposure it took stays there for
+    # `icgt recover-device`. Faster captures reach back less (20 fps: 3.2 min): set it lower for them.
+    host_timeout_s: Annotated[float, Meta(ge=0.0, le=86_400.0)] = HOST_TIMEOUT_DEFAULT_S
 
     def __post_init__(self) -> None:
+        try:
+            check_host_timeout(self.host_timeout_s)
+        except LimitError as exc:
+            raise ValueError(str(exc)) from None
         if self.shutter_pulse_s >= self.interval_s:
             raise ValueError(
                 f"shutter_pulse_s ({self.shutter_pulse_s}) must be shorter than interval_s ({self.interval_s}): "

@@ -25,6 +25,7 @@ import json
 import logging
 import math
 import os
+import secrets
 import threading
 import time
 from collections import deque
@@ -58,6 +59,7 @@ from icgt.protocol import Received as DeviceReceived
 from icgt.protocol.messages import (
     Board,
     ClockSource,
+    DeviceState,
     FrameFlags,
     Hello,
     Limit,
@@ -70,6 +72,7 @@ from icgt.protocol.messages import (
 from icgt.recorder import capture, topics, views
 from icgt.recorder.camera_link import CAMERA_IMAGES_SCHEMA, CameraImages, build_camera
 from icgt.recorder.config import RecorderConfig
+from icgt.recorder.device_stop import SelfStopWatch
 from icgt.recorder.resync import TakeOver, take_over
 from icgt.recorder.step_schedule import StepSchedule
 from icgt.recorder.tuning import InterpreterTuning
@@ -187,6 +190,8 @@ class Recorder:
         self.failure: IcgtError | None = None
         self._sensors = config.sensors  # what the device was configured with (a sensor that does not answer: off)
         self._tuning = InterpreterTuning()
+        self.recording_id = secrets.randbits(32) or 1  # named to the device in HOST_RECEIVED (nonzero)
+        self._self_stops = SelfStopWatch()
 
     @property
     def last_status(self) -> Status | None:
@@ -215,7 +220,12 @@ class Recorder:
         try:
             self._open_log(path)
             self._record_hello(self.hello)
-            assert self.device is not None
+            assert self.device is not None and self.mcap is not None
+            self.device.recording_id = self.recording_id
+            self.mcap.add_metadata(
+                layout.META_FLIGHT,
+                {"kind": "recording", "recording_id": f"0x{self.recording_id:08X}", "file": path.name},
+            )
             self._takeover = take_over(self.device, cfg.device.running_capture)
             if self._takeover.capturing and not self._takeover.adopted:
                 self.device.command(StopCapture())
@@ -338,10 +348,17 @@ class Recorder:
             known = f"about {taken} exposures (every {interval:.3f} s for {outage_ns / 1e9:.1f} s)"
         else:
             known = "exposures at an unknown rate"
+        timeout_s = self.config.capture.host_timeout_s
+        after = (
+            f"the device stops the capture by itself {timeout_s:g} s after it last heard from this recorder "
+            "([capture] host_timeout_s)"
+            if timeout_s
+            else "the camera may still be shooting ([capture] host_timeout_s = 0: the device never stops by itself)"
+        )
         detail = (
             f"capture stop not delivered ({exc}): the device was unreachable at the end and capturing; {known} "
-            "taken while unreachable are not in this log (unknown, device unreachable at the end); the camera may "
-            "still be shooting"
+            f"taken while unreachable are not in this log (unknown, device unreachable at the end); {after}; "
+            "icgt recover-device --flight THIS_LOG fetches what its history still holds"
         )
         log.error("%s", detail)
         self._write_event("device", "unreachable_at_end", detail, now, taken, outage_ns)
@@ -546,9 +563,31 @@ class Recorder:
         self.sync.on_device(msg, host_rx_ns, retransmitted=bool(received.flags & _RETRANSMIT))
         if msg.NAME == "EXPOSURE":
             self.exposures += 1
+        elif isinstance(msg, DeviceState):
+            self._on_device_state(msg, host_rx_ns)
         elif isinstance(msg, Log):
             self.views.on_device_log(msg.level, msg.text, host_rx_ns)
             log.log(_DEVICE_LOG_LEVELS.get(msg.level, logging.INFO), "device: %s", msg.text)
+
+    def _on_device_state(self, state: DeviceState, host_rx_ns: int) -> None:
+        """A DEVICE_STATE saying the device stopped a capture by itself (its host went silent): said once."""
+        news = self._self_stops.observe(state)
+        if news is None:
+            return
+        stop, before = news
+        if before:  # a capture of an earlier flight, before this recorder started
+            log.warning(
+                "%s, before this recording (the last host's log: recording id 0x%08X); what that flight's "
+                "outage left in the device's history: icgt recover-device --flight LOG",
+                stop.detail,
+                stop.recording_id,
+            )
+            return
+        self._capturing = False  # nothing left to stop at the end
+        if self.camera is not None:
+            self.camera.set_capturing(False)
+        log.warning("%s", stop.detail)
+        self._write_event("device", "device_stopped_itself", stop.detail, host_rx_ns, stop.triggers_fired)
 
     def _on_device_link_event(self, event: DeviceLinkEvent) -> None:
         level = logging.INFO if event.kind == "connected" else logging.WARNING

@@ -42,7 +42,8 @@ time = log time = the data's time.) Foxglove messages carry the publish time as 
 Metadata records: ``icgt.config`` (the effective configuration), ``icgt.sync`` (the synchroniser's
 settings as JSON: `icgt.sync.SyncConfig`), ``icgt.calibration`` (camera and mounting, for people),
 ``icgt.device``, ``icgt.time_bases``, ``icgt.enu_origin``, ``icgt.device_link``, ``icgt.mavlink_signing``
-(whether MAVLink 2 signing was on; never the key).
+(whether MAVLink 2 signing was on; never the key), ``icgt.flight`` (the recording id named to the device and
+the file name; for a log of `icgt recover-device`, the flight it was recovered for).
 """
 
 from __future__ import annotations
@@ -87,6 +88,10 @@ META_TIME_BASES = "icgt.time_bases"
 META_ENU_ORIGIN = "icgt.enu_origin"
 META_DEVICE_LINK = "icgt.device_link"
 META_MAVLINK_SIGNING = "icgt.mavlink_signing"
+# Which flight a log is: its recording id (the one HOST_RECEIVED names to the device) and file name; a log
+# written by `icgt recover-device` names the flight it was recovered for. (icgt.recording is the MCAP
+# writer's own.)
+META_FLIGHT = "icgt.flight"
 
 
 def device_topic(name: str) -> str:

@@ -90,6 +90,9 @@ class FlightData:
     """Track samples not drawn, by reason (NO_FIX, OUTSIDE)."""
     sync_counters: dict[str, int] = field(default_factory=dict)
     """The synchroniser's last counters (/icgt/counters)."""
+    device_stopped_itself: str | None = None
+    """The device stopped the capture by itself, its host silent for the host timeout (the recorder's account of
+    the DEVICE_STATE that said so when the link came back)."""
     unreachable_at_end: tuple[int, str] | None = None
     """The recording ended with capture running on an unreachable device: (exposures it was known to be taking,
     interval x outage, 0 if the rate is unknown; the recorder's account)."""
@@ -203,6 +206,8 @@ def _events(data: FlightData, events: list[dict[str, Any]]) -> None:
         outage = int(e.get("outage_ns") or 0)
         if kind == "unreachable_at_end":
             data.unreachable_at_end = (int(e.get("count") or 0), str(e.get("detail", kind)))
+        elif kind == "device_stopped_itself":
+            data.device_stopped_itself = str(e.get("detail", kind))
         elif kind in ("sequence_gap", "frames_rejected", "history_lost"):
             data.losses.append(Loss(link, t, kind, int(e.get("count") or 0)))
         elif kind in ("disconnected", "autopilot_lost"):
@@ -401,6 +406,11 @@ def summarize(data: FlightData) -> list[tuple[str, str]]:
     rejected = sum(x.count for x in data.losses if x.kind == "frames_rejected")
     rows.append(("device messages missing / corrupt frames", f"{lost} / {rejected}"))
     link = data.metadata.get("icgt.device_link", {})
+    if data.device_stopped_itself is not None:
+        rows.append(("capture stopped by the device", data.device_stopped_itself.removeprefix("the device ")))
+    recovered = data.metadata.get(layout.META_FLIGHT, {})
+    if recovered.get("kind") == "recovered":
+        rows.append(("recovered from the device", recovered.get("note", "")))
     if data.unreachable_at_end is not None:
         taken, _ = data.unreachable_at_end
         rows.append(

@@ -124,7 +124,9 @@ def fly_faults(sc: Scenario, plan: FaultPlan, out: Path) -> FlightResult:
     urls = session.start()
     rec_dir = out / "recording"
     config = out / "recorder.toml"
-    config.write_text(recorder_config_text(sc, rec_dir))
+    # These flights measure what the history ring brings back after an unplug of any length: the device must
+    # not stop its capture by itself meanwhile.
+    config.write_text(recorder_config_text(sc, rec_dir, host_timeout_s=0.0))
     sock = out / "ctl" / "rec.sock"
     sock.parent.mkdir(mode=0o700, exist_ok=True)
     log = (out / "recorder.log").open("w")

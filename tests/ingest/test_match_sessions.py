@@ -58,3 +58,15 @@ def test_a_card_of_another_flight_pairs_nothing_and_says_it_does_not_hold_the_lo
     assert result.pairs == [] and result.ambiguous == []
     assert len(result.unmatched_images) == len(other_card)
     assert any("the card does not hold this log" in n for n in result.notes), result.notes
+
+
+def test_an_undecided_clock_names_no_image_a_candidate() -> None:
+    """The first 10 % of a steady capture against the whole card (1 s EXIF): the log fits many places of the card.
+    No image is paired and no image is said to fit exposures: which ones depends on an offset nobody knows (before,
+    images 147-154 of such a card were said to fit frames 1-6, whose images are 1-6)."""
+    frames, card, truth = composed_card(_flight(5, passes=1, shots=200, p_miss=0.0), None, (0.0, 0.1), True, 0, 0)
+    result = match_times(frames, card)
+    assert result.pairs == []
+    assert any("the camera clock offset is not decided" in n for n in result.notes), result.notes
+    assert result.ambiguous and all(a.candidates == () for a in result.ambiguous)
+    assert all("not decided" in a.why for a in result.ambiguous)

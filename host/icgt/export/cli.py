@@ -223,7 +223,7 @@ def match_pairs(
         problems.add(u.image.name, None, "error", code, f"not matched to an exposure ({u.reason}): {u.detail}", "all")
     for a in result.ambiguous:
         code = "no_exif_time" if a.why.startswith("no EXIF time") else "ambiguous_match"
-        seqs = ", ".join(str(f.frame_seq) for f in a.candidates) or "none left"
+        seqs = ", ".join(str(f.frame_seq) for f in a.candidates) or "none named"
         problems.add(a.image.name, None, "error", code, f"not paired: {a.why} (candidate frames: {seqs})", "all")
     for uf in result.unmatched_frames:
         severity = "info" if uf.reason == "feedback_missing" else "warning"

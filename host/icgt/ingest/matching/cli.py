@@ -49,7 +49,7 @@ def cmd_match(args: argparse.Namespace) -> int:
         aligning.close()
     print(result.summary())
     for a in result.ambiguous:
-        seqs = ", ".join(str(f.frame_seq) for f in a.candidates) or "none left"
+        seqs = ", ".join(str(f.frame_seq) for f in a.candidates) or "none named"
         print(f"  ambiguous {a.image.name}: frames {seqs}: {a.why}")
     for u in result.unmatched_images:
         print(f"  image {u.image.name}: {u.reason}: {u.detail}")

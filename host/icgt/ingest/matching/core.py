@@ -171,12 +171,14 @@ def _match_session(
         outcome.frame_ambiguous.clear()
         result.notes.append(verdict.note())
     elif verdict is not None and not verdict.decided:
+        # No exposure is named as an image's candidate: which ones it could be depends on the offset, and the
+        # one that fits best here is no more the camera's than its rivals (the note lists them).
         why = "the camera clock offset is not decided (see the notes): not paired by its time"
-        for i in list(outcome.pairs):
+        for i in [*outcome.pairs, *outcome.ambiguous]:
             if card.has_time(i):
-                outcome.ambiguous[i] = ([outcome.pairs[i]], why)
-                outcome.frame_ambiguous.add(outcome.pairs[i])
-                del outcome.pairs[i]
+                if i in outcome.pairs:
+                    outcome.frame_ambiguous.add(outcome.pairs.pop(i))
+                outcome.ambiguous[i] = ([], why)
         result.notes.append(verdict.note())
     swap_rule(images, fr, model, outcome)
     untimed_rule(images, fr, outcome)

@@ -64,7 +64,7 @@ def test_an_undecided_clock_names_no_image_a_candidate() -> None:
     """The first 10 % of a steady capture against the whole card (1 s EXIF): the log fits many places of the card.
     No image is paired and no image is said to fit exposures: which ones depends on an offset nobody knows (before,
     images 147-154 of such a card were said to fit frames 1-6, whose images are 1-6)."""
-    frames, card, truth = composed_card(_flight(5, passes=1, shots=200, p_miss=0.0), None, (0.0, 0.1), True, 0, 0)
+    frames, card, _ = composed_card(_flight(5, passes=1, shots=200, p_miss=0.0), None, (0.0, 0.1), True, 0, 0)
     result = match_times(frames, card)
     assert result.pairs == []
     assert any("the camera clock offset is not decided" in n for n in result.notes), result.notes

@@ -57,6 +57,10 @@ def test_pose_verdicts():
     assert (ok, position) == (False, False) and "stale_pose" in why and "pose_extrapolated" in why
     ok, position, why = pose_verdict(["feedback_missing"])
     assert (ok, position) == (False, True) and "feedback_missing" in why
+    # a frame left without a position (no pose between distant samples, telemetry gone) publishes none
+    for flag in ("no_pose", "telemetry_expired", "no_fix"):
+        ok, position, why = pose_verdict([flag])
+        assert (ok, position) == (False, False) and flag in why
 
 
 def gpi(alt_m, rel_m, lat=473977419, lon=85455000):

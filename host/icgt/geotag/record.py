@@ -62,6 +62,17 @@ class FrameFlag(enum.StrEnum):
     IMU_FROM_SNAPSHOT = "imu_from_snapshot"  # the snapshot is nearer mid than any IMU sample held
 
 
+POOR_POSE_FLAGS = (
+    FrameFlag.NO_FIX,
+    FrameFlag.NO_POSE,
+    FrameFlag.TELEMETRY_EXPIRED,
+    FrameFlag.STALE_POSE,
+    FrameFlag.POSE_EXTRAPOLATED,
+    FrameFlag.NO_ATTITUDE,
+)
+"""Flags of a frame whose pose is missing or not to be trusted: no position goes to a ground station
+(CAMERA_IMAGE_CAPTURED) and the damage map does not place detections from it (unless asked)."""
+
 OUTAGE_NO_POSE = FrameFlag.TELEMETRY_EXPIRED
 """The flag of a frame without a pose because of an outage (it came back later than telemetry is kept)."""
 OUTAGE_NO_RANGE = FrameFlag.RANGE_SAMPLES_LOST

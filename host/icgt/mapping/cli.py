@@ -33,7 +33,7 @@ from icgt.geometry import (
     load_calibration,
     origin_from_frames,
 )
-from icgt.geotag.record import FrameFlag, FrameRecord
+from icgt.geotag.record import POOR_POSE_FLAGS, FrameRecord
 from icgt.mapping import MappingError
 from icgt.mapping.detections import read_detections
 from icgt.mapping.geojson import face_frame_json, features_face, features_wgs84, write_json
@@ -46,7 +46,7 @@ from icgt.mapping.tiles import TileRef, cut, load_index, stems
 
 log = logging.getLogger(__name__)
 
-UNTRUSTED_POSE = (FrameFlag.STALE_POSE, FrameFlag.POSE_EXTRAPOLATED, FrameFlag.NO_FIX, FrameFlag.NO_ATTITUDE)
+UNTRUSTED_POSE = POOR_POSE_FLAGS
 """Frames flagged so are not used for placing detections or the mosaic (unless asked: trust_flagged)."""
 
 

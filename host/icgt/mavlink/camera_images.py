@@ -9,7 +9,8 @@ each MAVLink index to its frame (``frame_seq``) and the device's trigger number.
 
 Poor poses: the synchroniser already holds a frame until its pose can be interpolated (the next position
 sample came) or its bounded wait ran out; whatever flags the frame then carries are final. A frame whose
-pose is not trustworthy (`POOR_POSE_FLAGS`: no fix, stale or extrapolated pose, no attitude) or whose
+pose is missing or not trustworthy (`POOR_POSE_FLAGS`: no fix, no pose, telemetry expired, stale or
+extrapolated pose, no attitude) or whose
 exposure the camera did not confirm (feedback_missing) is published with ``capture_result`` 0 and, for a
 poor pose, lat = lon = alt = relative_alt = 0 and the quaternion NaN: fields no ground station can take
 for a good fix. ``/camera/images`` says for each image which rule applied, so the log and the ground
@@ -28,7 +29,7 @@ import threading
 from typing import Any
 
 from icgt.errors import IcgtError
-from icgt.geotag.record import FrameFlag
+from icgt.geotag.record import POOR_POSE_FLAGS, FrameFlag
 
 __all__ = [
     "POOR_POSE_FLAGS",
@@ -45,8 +46,6 @@ class CameraError(IcgtError):
     """A camera message cannot be built from the values given (e.g. a latitude out of range)."""
 
 
-POOR_POSE_FLAGS = (FrameFlag.NO_FIX, FrameFlag.STALE_POSE, FrameFlag.POSE_EXTRAPOLATED, FrameFlag.NO_ATTITUDE)
-"""Flags that make a frame's pose untrustworthy: published with capture_result 0 and no position."""
 
 
 @dataclasses.dataclass(frozen=True, slots=True)

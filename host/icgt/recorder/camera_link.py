@@ -79,6 +79,9 @@ class CameraImages:
     def image(self, rec: FrameRecord, time_boot_ms: int) -> tuple[CapturedImage, str, bool]:
         """(what to publish, the policy's reason, whether the position is published) for one frame."""
         capture_result, position_ok, reason = pose_verdict(rec.flags)
+        if position_ok and (rec.lat_deg is None or rec.lon_deg is None or rec.alt_msl_m is None):
+            # Every flag that leaves a frame without a position is a poor-pose flag; this guards a new one.
+            capture_result, position_ok, reason = False, False, "no position in the frame record"
         q = None
         if rec.cam_qw is not None and position_ok:
             # MAVLink's camera quaternion is the camera body (x forward) in NED: undo the optical base.

@@ -46,8 +46,6 @@ class CameraError(IcgtError):
     """A camera message cannot be built from the values given (e.g. a latitude out of range)."""
 
 
-
-
 @dataclasses.dataclass(frozen=True, slots=True)
 class CapturedImage:
     """One exposure for CAMERA_IMAGE_CAPTURED, in SI units (the component converts to MAVLink's).

@@ -41,6 +41,8 @@ def card(tmp_path: Path) -> Path:
     Image.new("RGB", (32, 24)).save(root / "100MSDCF" / "DSC00001.ARW", format="TIFF")  # stands in for a RAW
     Image.new("RGB", (32, 24)).save(root / "100MSDCF" / "DSC00077.NEF", format="TIFF")
     (root / "100MSDCF" / "IMG_0001.HEIC").write_bytes(b"\x00\x00\x00\x18ftypheic")
+    Image.new("RGB", (32, 24)).save(root / "100MSDCF" / "DSC00003.PNG", format="PNG")
+    (root / "100MSDCF" / "C0001.MP4").write_bytes(b"\x00\x00\x00\x18ftypmp42")  # a video: not an image
     return root
 
 
@@ -56,11 +58,16 @@ def test_hidden_files_are_not_images_and_are_listed(card: Path) -> None:
         ("DSC00099.JPG", "info", "hidden_file_skipped"),
         ("IMG_0001.HEIC", "error", "heic_not_supported"),
         ("DSC00077.NEF", "warning", "raw_without_jpeg"),
+        ("DSC00003.PNG", "warning", "image_not_supported"),
     }
     assert exit_status(problems) == 1
     infos = ProblemLog()
     report_card(scan_card(card / ".Trashes"), set(), infos)
     assert exit_status(infos) == 0 and exit_status(ProblemLog()) == 0
+    # warnings alone: exit 0 (they are in problems.csv and on stderr), 1 with --strict
+    warnings = ProblemLog()
+    warnings.add("DSC00003.PNG", None, "warning", "image_not_supported", "png")
+    assert exit_status(warnings) == 0 and exit_status(warnings, strict=True) == 1
 
 
 def test_raw_files_get_an_xmp_sidecar_with_the_same_geotag(card: Path, tmp_path: Path) -> None:

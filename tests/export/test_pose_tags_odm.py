@@ -40,6 +40,27 @@ DJI_XMP = (
     'drone-dji:RtkFlag="50" drone-dji:RtkStdLon="0.011" drone-dji:RtkStdLat="0.012" drone-dji:RtkStdHgt="0.025"/>'
     "</rdf:RDF></x:xmpmeta>"
 )
+# DJI X3-style packet: the Description is about "DJI Meta Data", and a second one holds Camera Raw settings (crs),
+# which ExifTool keeps in a Description of its own when it rewrites the packet.
+DJI_X3_XMP = (
+    '<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
+    '<rdf:Description rdf:about="DJI Meta Data" xmlns:tiff="http://ns.adobe.com/tiff/1.0/" '
+    'xmlns:dc="http://purl.org/dc/elements/1.1/" xmlns:drone-dji="http://www.dji.com/drone-dji/1.0/" '
+    'tiff:Make="DJI" drone-dji:AbsoluteAltitude="+{alt:.2f}" drone-dji:RelativeAltitude="+20.100" '
+    'drone-dji:GimbalRollDegree="+0.00" drone-dji:GimbalYawDegree="-12.30" drone-dji:GimbalPitchDegree="-90.00" '
+    'drone-dji:FlightRollDegree="+1.20" drone-dji:FlightYawDegree="-12.30" drone-dji:FlightPitchDegree="-3.10">'
+    "<dc:format>image/jpg</dc:format></rdf:Description>"
+    '<rdf:Description rdf:about="DJI Meta Data" xmlns:crs="http://ns.adobe.com/camera-raw-settings/1.0/" '
+    'crs:Version="7.0" crs:HasSettings="False" crs:HasCrop="False" crs:AlreadyApplied="False"/>'
+    "</rdf:RDF></x:xmpmeta>"
+)
+# A survey camera's packet that repeats a property in one Description (ExifTool: "[Minor] Duplicate XMP property")
+DUPLICATE_XMP = (
+    '<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
+    '<rdf:Description rdf:about="" xmlns:Camera="http://pix4d.com/camera/1.0/">'
+    "<Camera:Yaw>10.5</Camera:Yaw><Camera:Pitch>3.0</Camera:Pitch><Camera:Roll>-2.0</Camera:Roll>"
+    "<Camera:BandName>RGB</Camera:BandName><Camera:Yaw>10.5</Camera:Yaw></rdf:Description></rdf:RDF></x:xmpmeta>"
+)
 SENSEFLY_XMP = (
     '<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
     '<rdf:Description rdf:about="" xmlns:Camera="http://pix4d.com/camera/1.0/">'
@@ -79,12 +100,14 @@ def exported(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, 
     card, out = tmp_path_factory.mktemp("card"), tmp_path_factory.mktemp("out")
     pairs, frames = [], {}
     seq = 0
-    for kind, make in (("plain", "SONY"), ("dji", "DJI"), ("sensefly", "senseFly")):
+    kinds = (("plain", "SONY"), ("dji", "DJI"), ("djix3", "DJI"), ("sensefly", "senseFly"), ("cuav", "CUAV"))
+    for kind, make in kinds:
         for att in ATTITUDES:
             seq += 1
             f = frame(seq, *att)
             lat, lon, alt = f.lat_deg or 0.0, f.lon_deg or 0.0, (f.alt_msl_m or 0.0) + 86.0  # the camera's: 86 m off
-            xmp = {"plain": None, "dji": DJI_XMP.format(alt=alt, lat=lat, lon=lon), "sensefly": SENSEFLY_XMP}[kind]
+            xmp = {"plain": None, "dji": DJI_XMP.format(alt=alt, lat=lat, lon=lon), "sensefly": SENSEFLY_XMP,
+                   "djix3": DJI_X3_XMP.format(alt=alt), "cuav": DUPLICATE_XMP}[kind]  # fmt: skip
             name = f"{kind.upper()}_{seq:04d}.JPG"
             pairs.append((jpeg(card / name, make, xmp), f))
             frames[name] = f
@@ -146,12 +169,13 @@ def test_the_cameras_own_pose_tags_are_replaced_and_recorded(
     out, frames, problems = exported
     replaced = {p.image: p.detail for p in problems if p.code == "camera_tags_replaced"}
     dji = [n for n in frames if n.startswith("DJI")]
-    assert set(replaced) == set(dji) | {n for n in frames if n.startswith("SENSEFLY")}
+    assert set(replaced) == set(dji) | {n for n in frames if n.startswith(("SENSEFLY", "CUAV"))}
     for name in dji:
         data = (out / "images" / name).read_bytes()
         (desc,) = descriptions(data)
         assert not {"@drone-dji:FlightYawDegree", "@drone-dji:RtkStdLon", "@Camera:Pitch"} & set(desc)
-        assert "XMP-drone-dji:AbsoluteAltitude=" in replaced[name] and "XMP-drone-dji:RtkStdLon=0.011" in replaced[name]
+        assert "XMP-drone-dji:AbsoluteAltitude=" in replaced[name]
+        assert name.startswith("DJIX3") or "XMP-drone-dji:RtkStdLon=0.011" in replaced[name]  # X3s have no RTK
         assert desc["@drone-dji:RelativeAltitude"] == "+20.100"  # not a pose tag: kept
         assert "XMP-drone-dji:FlightYawDegree=-12.3" in desc["@icgt:ReplacedTags"]
 
@@ -166,3 +190,21 @@ def test_angle_conventions_on_known_cases() -> None:
     assert odm_angles(q(95.0, 0.0)) == pytest.approx((95.0, 90.0, 0.0), abs=1e-6)  # level: pitch 90
     assert odm_angles(q(95.0, 12.0)) == pytest.approx((95.0, 102.0, 0.0), abs=1e-6)  # looking up
     assert img_direction(359.996) == 0.0 and img_direction(359.994) == 359.99 and img_direction(-0.5) == 359.5
+
+
+def test_camera_xmp_defects_are_tolerated_and_said(exported: tuple[Path, dict[str, FrameRecord], ProblemLog]) -> None:
+    """A repeated property (a survey camera's) and a Camera Raw block (DJI X3): every file gets its copy, the
+    copy's XMP is one Description holding the camera's other properties, and problems.csv says what was done."""
+    out, frames, problems = exported
+    codes = {(p.image, p.code): p.detail for p in problems}
+    for name in frames:
+        data = (out / "images" / name).read_bytes()
+        (desc,) = descriptions(data)
+        if name.startswith("CUAV"):
+            assert "Duplicate XMP property" in codes[(name, "xmp_defect_tolerated")]
+            assert desc.get("@Camera:BandName", desc.get("Camera:BandName")) == "RGB"  # the camera's own kept
+        if name.startswith("DJIX3"):
+            assert (name, "xmp_descriptions_merged") in codes
+            assert desc["@crs:Version"] == "7.0" and desc.get("@dc:format", desc.get("dc:format")) == "image/jpg"
+            assert desc["@rdf:about"] == "DJI Meta Data"
+    assert not [p for p in problems if p.severity == "error"]

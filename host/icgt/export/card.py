@@ -6,6 +6,8 @@
 - RAW files (`RAW_SUFFIXES`) get an XMP sidecar with the geotag of the JPEG with the same name
   in the same folder (the camera's RAW+JPEG mode); a RAW without such a JPEG is reported.
 - HEIC/HEIF files are reported: the matcher does not read them (convert them to JPEG first).
+- Other image files (`OTHER_IMAGE_SUFFIXES`: PNG, TIFF, ...) are reported as not read; files that are
+  not images (videos, the camera's database and thumbnail files) are not the matcher's and not listed.
 - `jpeg_damage` finds a JPEG that is cut off (no end-of-image marker after its image data) or
   whose markers are broken; such an image is a problem row and gets no copy.
 """
@@ -19,6 +21,7 @@ RAW_SUFFIXES = (".arw", ".srf", ".sr2", ".dng", ".nef", ".nrw", ".cr2", ".cr3", 
                 ".raf", ".pef", ".srw", ".3fr", ".iiq", ".erf", ".x3f")  # fmt: skip
 HEIC_SUFFIXES = (".heic", ".heif", ".hif")
 JPEG_SUFFIXES = (".jpg", ".jpeg")
+OTHER_IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".webp", ".bmp", ".gif", ".jp2", ".jxl", ".avif")
 
 
 def is_hidden(path: Path, root: Path) -> bool:
@@ -35,10 +38,11 @@ class CardScan:
     hidden: list[Path] = field(default_factory=list)
     raw: list[Path] = field(default_factory=list)
     heic: list[Path] = field(default_factory=list)
+    unsupported: list[Path] = field(default_factory=list)  # images the matcher does not read (PNG, TIFF, ...)
 
 
 def scan_card(root: Path) -> CardScan:
-    """Hidden, RAW and HEIC files below root (the JPEGs are the matcher's)."""
+    """Hidden, RAW, HEIC and other image files below root (the JPEGs are the matcher's)."""
     scan = CardScan()
     for p in sorted(root.rglob("*")):
         if not p.is_file():
@@ -49,6 +53,8 @@ def scan_card(root: Path) -> CardScan:
             scan.raw.append(p)
         elif p.suffix.lower() in HEIC_SUFFIXES:
             scan.heic.append(p)
+        elif p.suffix.lower() in OTHER_IMAGE_SUFFIXES:
+            scan.unsupported.append(p)
     return scan
 
 

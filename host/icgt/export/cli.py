@@ -176,7 +176,7 @@ def geoid_separation_from_log(recording: Any) -> float | None:
 
 
 def report_card(scan: CardScan, paired: set[Path], problems: ProblemLog) -> None:
-    """Rows for what the card holds besides paired JPEGs: hidden files, HEIC, RAW without a paired JPEG."""
+    """Rows for what the card holds besides paired JPEGs: hidden files, HEIC, other images, RAW without a JPEG."""
     from icgt.export.card import raw_siblings
 
     for p in scan.hidden:
@@ -186,6 +186,9 @@ def report_card(scan: CardScan, paired: set[Path], problems: ProblemLog) -> None
     for p in scan.heic:
         problems.add(p.name, None, "error", "heic_not_supported",
                      f"{p}: HEIC/HEIF images are not read (convert them to JPEG first)", "all")  # fmt: skip
+    for p in scan.unsupported:
+        problems.add(p.name, None, "warning", "image_not_supported",
+                     f"{p}: {p.suffix} images are not read (only JPEG): not paired, no copy", "all")  # fmt: skip
     with_jpeg = {r for j in paired for r in raw_siblings(j, scan.raw)}
     for p in scan.raw:
         if p not in with_jpeg:
@@ -422,12 +425,14 @@ def cmd_export(args: argparse.Namespace) -> int:
                 "%s%s: %s: %s", p.image or "", f" (frame {p.frame_seq})" if p.frame_seq else "", p.code, p.detail
             )
     print(result.describe(), file=sys.stdout)
-    return exit_status(result.problems)
+    return exit_status(result.problems, strict=bool(getattr(args, "strict", False)))
 
 
-def exit_status(problems: ProblemLog) -> int:
-    """0: everything exported with nothing to distrust (info rows only); 1: problems.csv has errors or warnings."""
-    return 1 if any(p.severity in ("error", "warning") for p in problems) else 0
+def exit_status(problems: ProblemLog, *, strict: bool = False) -> int:
+    """0: exported, problems.csv holds no error (warnings and info rows are said there and on stderr);
+    1: problems.csv has errors; with `strict`, warnings count as errors too."""
+    failing = ("error", "warning") if strict else ("error",)
+    return 1 if any(p.severity in failing for p in problems) else 0
 
 
 def add_export_arguments(parser: argparse.ArgumentParser) -> None:
@@ -454,3 +459,6 @@ def add_export_arguments(parser: argparse.ArgumentParser) -> None:
         help="geoid height N [m] for GeoJSON ellipsoidal heights: auto (from GPS_RAW_INT), none, or metres",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    parser.add_argument(
+        "--strict", action="store_true", help="exit 1 on warnings too (default: only on errors in problems.csv)"
+    )

@@ -36,6 +36,7 @@ from typing import Any
 from icgt.export.common import ExportItem, position_sigma_m, utc_iso
 from icgt.export.exiftool_session import NS_ICGT, XMP_LAYOUT
 from icgt.export.pose_tags import CONFLICTING, img_direction, odm_angles, xmp_pose_values
+from icgt.export.xmp_packet import xmp_span
 
 XMP_NS = NS_ICGT
 
@@ -213,16 +214,13 @@ def write_args(
     return [*args, "-o", str(dst), str(src)]
 
 
-XMP_APP1_HEADER = b"http://ns.adobe.com/xap/1.0/\x00"
-
-
 def xmp_lacks_wrapper(data: bytes) -> bool:
     """The JPEG's XMP packet (APP1) has no x:xmpmeta element (a bare rdf:RDF, x:xapmeta is fine for ExifTool)."""
-    i = data.find(XMP_APP1_HEADER, 0, 1 << 20)
-    if i < 2:
+    where = xmp_span(data)
+    if where is None:
         return False
-    end = i - 2 + int.from_bytes(data[i - 2 : i], "big")
-    return b"<x:xmpmeta" not in data[i:end] and b"<x:xapmeta" not in data[i:end]
+    packet = data[where[0] : where[1]]
+    return b"<x:xmpmeta" not in packet and b"<x:xapmeta" not in packet
 
 
 def _seconds(hms: Any) -> float:

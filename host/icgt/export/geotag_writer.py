@@ -34,6 +34,7 @@ from icgt.export.common import ExportItem, ProblemLog
 from icgt.export.exif_tags import ICGT_TAGS, READ_TAGS, check_copy, intended_tags, write_args, xmp_lacks_wrapper
 from icgt.export.exiftool_session import ExifToolSession
 from icgt.export.tag_reader import read_tags
+from icgt.export.xmp_packet import merge_descriptions_in_jpeg
 
 FAR_GPS_M = 100.0
 """A camera GPS further than this from the log's position is reported (GPS errors are metres, not 100 m)."""
@@ -48,6 +49,7 @@ class _Pending:
     tmp: Path
     tags: dict[str, Any]
     sidecar: bool
+    warnings: str = ""  # what ExifTool warned of while writing (quoted if the copy does not read back right)
 
 
 def _ground_distance_m(lat1: float, lon1: float, lat2: float, lon2: float) -> float:
@@ -220,13 +222,49 @@ def _write_one(
     except OSError as exc:
         problems.add(name, seq, "error", code, f"cannot write {dst}: {exc.strerror or exc}", "jpeg")
         return []
-    status, _, err = et.run(write_args(src, tmp, tags, sidecar=sidecar, rewrap_xmp=rewrap))
+    args = write_args(src, tmp, tags, sidecar=sidecar, rewrap_xmp=rewrap)
+    status, _, err = et.run(args)
+    minor = _minor_defects(err)
+    if minor:
+        # ExifTool leaves the whole XMP packet unwritten when the camera's has a minor defect (a property
+        # repeated in one rdf:Description, Descriptions of different rdf:about): written again with -m,
+        # which drops the repetition and keeps every property, and the defect is said.
+        tmp.unlink(missing_ok=True)
+        status, _, err2 = et.run(["-m", *args])
+        err = "; ".join(x for x in (err.strip(), err2.strip()) if x)
+        problems.add(name, seq, "info", "xmp_defect_tolerated", "the camera's XMP has a minor defect ExifTool "
+                     f"would not write over ({'; '.join(minor)}): written with it tolerated")  # fmt: skip
     if status != 0 or not tmp.exists():
         tmp.unlink(missing_ok=True)
         why = " ".join(err.split()) or f"exiftool exit status {status}"
         problems.add(name, seq, "error", code, f"exiftool could not write the copy: {why}", "jpeg")
         return []
-    return [_Pending(item, src, dst, tmp, tags, sidecar)]
+    if not sidecar:
+        try:
+            merge = merge_descriptions_in_jpeg(tmp)
+        except OSError as exc:
+            tmp.unlink(missing_ok=True)
+            problems.add(name, seq, "error", code, f"cannot rewrite {tmp}: {exc.strerror or exc}", "jpeg")
+            return []
+        if merge.merged:
+            problems.add(name, seq, "info", "xmp_descriptions_merged", f"ExifTool wrote {merge.merged} "
+                         "rdf:Description elements (it keeps Camera Raw settings apart): merged into one, so that "
+                         "ODM applies its per-make pitch and accuracy rules once")  # fmt: skip
+        elif merge.refused:
+            problems.add(name, seq, "warning", "xmp_descriptions_kept", f"the copy's XMP keeps several "
+                         f"rdf:Description elements ({merge.refused}): ODM may apply its per-make rules more "
+                         "than once (geo.txt carries the pose as meant)")  # fmt: skip
+    return [_Pending(item, src, dst, tmp, tags, sidecar, " ".join(err.split()))]
+
+
+def _minor_defects(stderr: str) -> list[str]:
+    """ExifTool's '[Minor]' warnings and errors (file name stripped): defects -m lets it write over."""
+    out = []
+    for line in stderr.splitlines():
+        if "[minor]" in line.lower():
+            text = line.split(":", 1)[1].strip() if ":" in line else line.strip()
+            out.append(text.rsplit(" - ", 1)[0])
+    return out
 
 
 def _finish(p: _Pending, got: dict[str, Any], problems: ProblemLog) -> int:
@@ -236,6 +274,8 @@ def _finish(p: _Pending, got: dict[str, Any], problems: ProblemLog) -> int:
         p.tmp.unlink(missing_ok=True)
         code = "xmp_sidecar_failed" if p.sidecar else "jpeg_readback_mismatch"
         detail = "the written copy does not read back as meant: " + "; ".join(diffs[:5])
+        if p.warnings:
+            detail += f" (exiftool said: {p.warnings})"
         problems.add(p.src.name, seq, "error", code, detail, "jpeg")
         return 0
     try:

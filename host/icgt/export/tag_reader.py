@@ -19,8 +19,8 @@ from pathlib import Path
 from typing import Any
 
 from icgt.export.exiftool_session import NS_CAMERA, NS_ICGT
+from icgt.export.xmp_packet import xmp_span
 
-XMP_APP1_HEADER = b"http://ns.adobe.com/xap/1.0/\x00"
 _RDF = "{http://www.w3.org/1999/02/22-rdf-syntax-ns#}"
 GROUPS = {
     NS_CAMERA: "XMP-Camera",
@@ -65,11 +65,8 @@ def _xmp_value(text: str) -> Any:
 
 
 def _xmp_packet(data: bytes) -> bytes | None:
-    i = data.find(XMP_APP1_HEADER, 0, 1 << 20)
-    if i < 2:
-        return None
-    end = i - 2 + int.from_bytes(data[i - 2 : i], "big")
-    return data[i + len(XMP_APP1_HEADER) : end]
+    where = xmp_span(data)
+    return None if where is None else data[where[0] : where[1]]
 
 
 def _xmp_tags(packet: bytes) -> dict[str, Any]:

@@ -215,7 +215,10 @@ def match_images(
         max_drift_ppm=max_drift_ppm,
         progress=align_progress,
     )
-    untimed = sum(1 for t in times if t.time_s is None)
+    untimed = [p.name for p, t in zip(paths, times, strict=True) if t.time_s is None]
     if untimed:
-        result.notes.append(f"{untimed} images without EXIF DateTimeOriginal")
+        more = f" and {len(untimed) - 10} more" if len(untimed) > 10 else ""
+        result.notes.append(
+            f"{len(untimed)} images without EXIF DateTimeOriginal (not paired by time): {', '.join(untimed[:10])}{more}"
+        )
     return result

@@ -70,18 +70,21 @@ def merge_descriptions(packet: bytes) -> tuple[bytes, MergeResult]:
     abouts = {d.get(_ABOUT, "") for d in descs}
     if len(abouts) > 1:
         return packet, MergeResult(0, f"the rdf:Description elements describe different resources {sorted(abouts)}")
-    nsmap: dict[str | None, str] = {}
+    nsmap: dict[str, str] = {}
     for d in descs:
         for prefix, uri in d.nsmap.items():
+            if prefix is None:  # XMP names every namespace; a default one would change what names mean
+                return packet, MergeResult(0, "a default namespace is declared")
             if nsmap.setdefault(prefix, uri) != uri:
                 return packet, MergeResult(0, f"prefix {prefix!r} stands for two namespaces")
-    merged = etree.Element(f"{{{_RDF}}}Description", nsmap=nsmap)  # type: ignore[arg-type]
+    merged = etree.Element(f"{{{_RDF}}}Description", nsmap=nsmap)
     merged.set(_ABOUT, abouts.pop())
     merged.text = descs[0].text
     merged.tail = descs[-1].tail
     seen: set[str] = set()
     for d in descs:
-        for key, value in d.attrib.items():
+        for raw_key, value in d.attrib.items():
+            key = str(raw_key)
             if key == _ABOUT:
                 continue
             if key in seen:

@@ -111,6 +111,21 @@ def composed_card(
     return kept, card, truth
 
 
+def with_foreign_file(
+    images: list[ImageTime], truth: dict[Path, int | None], where: float, after_s: float | None
+) -> tuple[list[ImageTime], dict[Path, int | None]]:
+    """The card with another device's file put at fraction `where` of it: no EXIF time (`after_s` None), or the
+    time of the camera image before it plus `after_s` at that image's resolution (a phone photo, a copy)."""
+    k = min(len(images), round(where * len(images)))
+    before = next((t for t in reversed(images[:k]) if t.time_s is not None), None)
+    path = Path("FOREIGN_0001.JPG")
+    if after_s is None or before is None or before.time_s is None:
+        foreign = ImageTime(path, None, None)
+    else:
+        foreign = ImageTime(path, before.time_s + after_s, before.resolution_s)
+    return [*images[:k], foreign, *images[k:]], {**truth, path: None}
+
+
 def interleaving_step(params: dict[str, Any], shift_s: float, other_after: bool) -> float:
     """The `composed_card` clock step that sets the other flight's camera times to the middle of this flight's (a
     camera clock set back between flights, or forward before them): the card's times then interleave."""

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from synthetic_cards import capture, composed_card, interleaving_step
+from synthetic_cards import capture, composed_card, interleaving_step, with_foreign_file
 
 from icgt.demo import Flight
 from icgt.geotag import FrameRecord
@@ -218,6 +218,9 @@ _compositions = st.fixed_dictionaries(
         "other_after": st.booleans(),
         "shift_s": st.sampled_from([60.0, 600.0, 7200.0]),  # the gap between the flights (> any clock step)
         "step_s": st.sampled_from([0.0, 3600.0, -3600.0, 37.0, -37.0, math.nan]),  # nan: times interleave
+        # a file of another device among the camera's: (where on the card [0-1], its time: none, or this many
+        # seconds after the camera image before it)
+        "foreign": st.one_of(st.none(), st.tuples(st.floats(0.0, 1.0), st.sampled_from([None, 0.1, 0.45, 5000.0]))),
     }
 )
 
@@ -226,7 +229,10 @@ def _composed(c: dict[str, Any]) -> tuple[list[FrameRecord], list[ImageTime], di
     step = c["step_s"]
     if math.isnan(step):  # the other flight's camera clock set so that its times fall among this one's
         step = interleaving_step(c["flight"], c["shift_s"], c["other_after"])
-    return composed_card(c["flight"], c["other"], c["cut"], c["other_after"], c["shift_s"], step)
+    frames, images, truth = composed_card(c["flight"], c["other"], c["cut"], c["other_after"], c["shift_s"], step)
+    if c.get("foreign") is not None:
+        images, truth = with_foreign_file(images, truth, *c["foreign"])
+    return frames, images, truth
 
 
 @settings(
@@ -238,8 +244,8 @@ def _composed(c: dict[str, Any]) -> tuple[list[FrameRecord], list[ImageTime], di
 @given(_compositions)
 def test_a_card_holding_more_than_the_log_never_pairs_wrongly(c: dict[str, Any]) -> None:
     """Issue 36: a log cut short (the recorder died, the camera kept shooting), images from before and after
-    it, a second flight on the card with its camera clock stepped (its times even among the log's): 0 wrong
-    pairs, everything accounted for."""
+    it, a second flight on the card with its camera clock stepped (its times even among the log's), another
+    device's file among the camera's (with a time or none): 0 wrong pairs, everything accounted for."""
     frames, images, truth = _composed(c)
     _assert_never_wrong_and_all_accounted(match_times(frames, images), frames, images, truth)
 

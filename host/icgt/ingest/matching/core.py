@@ -19,7 +19,7 @@ from icgt.ingest.matching.results import (
     MatchResult,
     UnmatchedImage,
 )
-from icgt.ingest.matching.rules import swap_rule, untimed_rule
+from icgt.ingest.matching.rules import CLOCK_AMBIGUITY, swap_rule, timed_first_rule, untimed_rule
 from icgt.ingest.matching.search import MAX_SCAN_S, grid, refine, scan, settle
 from icgt.ingest.matching.sessions import match_sessions, split_sessions
 from icgt.ingest.matching.state import Card, Model, Outcome, frames_from
@@ -152,7 +152,7 @@ def _match_session(
                 cands.update(other.ambiguous[i][0])
             outcome.ambiguous[i] = (
                 sorted(cands),
-                f"the camera clock is not pinned down: an offset {other_model.offset - model.offset:+.3f} s from "
+                f"{CLOCK_AMBIGUITY}: an offset {other_model.offset - model.offset:+.3f} s from "
                 "the best fit explains the card about as well and pairs this image otherwise",
             )
             outcome.frame_ambiguous.update(cands)
@@ -181,6 +181,7 @@ def _match_session(
                 outcome.ambiguous[i] = ([], why)
         result.notes.append(verdict.note())
     swap_rule(images, fr, model, outcome)
+    timed_first_rule(images, outcome)
     untimed_rule(images, fr, outcome)
     report(images, fr, model, outcome, result)
     step_done(final=True)

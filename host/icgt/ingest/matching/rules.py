@@ -1,4 +1,5 @@
-"""Rules after the alignment: a manual shot during a shutter lag, images without EXIF time."""
+"""Rules after the alignment: a manual shot during a shutter lag, a timed image before an untimed one, images
+without EXIF time."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import itertools
 import numpy as np
 
 from icgt.geotag.record import FrameFlag
-from icgt.ingest.matching.results import ImageTime
+from icgt.ingest.matching.results import IMAGE_NO_TIME_UNPLACED, ImageTime
 from icgt.ingest.matching.state import Frames, Model, Outcome
 
 SWAP_MARGIN_US = 10_000.0
@@ -58,6 +59,66 @@ def swap_rule(times: list[ImageTime], fr: Frames, model: Model, out: Outcome) ->
             out.ambiguous[i] = ([j, k], why)
             del out.pairs[i]
         out.frame_ambiguous.update((j, k))
+
+
+CLOCK_AMBIGUITY = "the camera clock is not pinned down"  # the start of core.py's note for such images
+
+
+def timed_first_rule(times: list[ImageTime], out: Outcome) -> None:
+    """Images whose EXIF time fits one exposure each take them before images without EXIF time do.
+
+    The alignment costs an image paired by its time and one placed by card order alike, so a file
+    without EXIF time among timed images (another device's file, a camera file with its metadata
+    stripped) makes its timed neighbours ambiguous: any of them could be an exposure's image. The time
+    is the stronger evidence. In a run of ambiguous images on the card that holds an untimed one,
+    whose neighbours on both sides are paired, the timed images are paired when each has one candidate
+    exposure, between those neighbours' and in card order; the untimed images lose those candidates
+    (with none left, one is an image without time and nothing to place it by). Ambiguity from the
+    camera clock (rival offsets) is not touched: there the times themselves are in doubt."""
+    n = len(times)
+    paired = set(out.pairs.values())
+    i = 0
+    while i < n:
+        if i not in out.ambiguous:
+            i += 1
+            continue
+        start = i
+        while i < n and i in out.ambiguous:
+            i += 1
+        run = range(start, i)
+        if start == 0 or i == n or start - 1 not in out.pairs or i not in out.pairs:
+            continue
+        untimed = [k for k in run if times[k].time_s is None]
+        timed = [k for k in run if times[k].time_s is not None]
+        if not untimed or not timed:
+            continue
+        lo, hi = out.pairs[start - 1], out.pairs[i]
+        picks: list[int] = []
+        for k in timed:
+            cands, why = out.ambiguous[k]
+            if len(cands) != 1 or why.startswith(CLOCK_AMBIGUITY) or cands[0] in paired:
+                break
+            picks.append(cands[0])
+        else:
+            if all(a < b for a, b in itertools.pairwise([lo, *picks, hi])):
+                _give_to_timed(timed, picks, untimed, out)
+                paired.update(picks)
+
+
+def _give_to_timed(timed: list[int], picks: list[int], untimed: list[int], out: Outcome) -> None:
+    for k, j in zip(timed, picks, strict=True):
+        out.pairs[k] = j
+        del out.ambiguous[k]
+    taken = set(picks)
+    for k in untimed:
+        left = [c for c in out.ambiguous[k][0] if c not in taken]
+        if left:
+            out.ambiguous[k] = (left, out.ambiguous[k][1])
+        else:
+            del out.ambiguous[k]
+            out.extra[k] = IMAGE_NO_TIME_UNPLACED
+    still = {c for cands, _w in out.ambiguous.values() for c in cands}
+    out.frame_ambiguous -= taken - still
 
 
 def untimed_rule(times: list[ImageTime], fr: Frames, out: Outcome) -> None:

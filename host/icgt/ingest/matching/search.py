@@ -40,6 +40,13 @@ def refine(
     ):
         return model, Outcome(math.inf, {}, {}, {}, set())
     final = solve_once(model, 0.0)
+    if final.cost > 1e-9 and (start.offset, start.drift, 0.0) != (model.offset, model.drift, 0.0):
+        # A drift fitted to pairs that were partly wrong (an extra image shifting a run by one exposure
+        # fits a drift as well as the truth does) can end costlier than where it started: the start's
+        # alignment is then the better one, and the scan for rivals must be made around it.
+        base = solve_once(start, 0.0)
+        if base.cost < final.cost - 1e-9:
+            model, final = start, base
     return model, Outcome(
         final.cost, dict(final.pairs), dict(final.ambiguous), dict(final.extra), set(final.frame_ambiguous)
     )
@@ -110,6 +117,8 @@ def _scan(
     t_pad = float(fr.tol.max()) + step / 2.0
     untimed = float(len(card) - len(card.timed))
     uniq, first, counts = np.unique(c, return_index=True, return_counts=True)
+    ext_lo = uniq - t_pad  # each distinct EXIF window with the padding, sorted by start
+    ext_hi_sorted = np.sort(uniq + r[first] + t_pad)
     limit = best + AMBIGUITY_MARGIN
     # Offsets whose windows admit the same exposures for every image (the same signature) share the
     # first one's solution; each first one gets a lower bound on its cost: images with fewer exposures
@@ -137,7 +146,11 @@ def _scan(
         uncovered = float(np.count_nonzero(~covered & (skip_e > 0)))
         core_lo = np.searchsorted(pe, uniq + t_pad, side="left")
         core_hi = np.searchsorted(pe, uniq + r[first] - t_pad, side="left")
-        excess = float(np.clip((core_hi - core_lo) - counts, 0, None).sum())
+        # only exposures that no other EXIF window reaches: where windows overlap (an image whose time is
+        # not on the second, another camera's) an exposure deep inside one may be another's image's
+        inside = np.searchsorted(ext_lo, pe, side="right") - np.searchsorted(ext_hi_sorted, pe, side="left")
+        only = np.concatenate([[0], np.cumsum(inside == 1)])
+        excess = float(np.clip((only[core_hi] - only[core_lo]) - counts, 0, None).sum())
         # (an image without EXIF time may take any of those exposures)
         bound += max(0.0, uncovered + excess - untimed) * min_skip
         firsts.append((bound, k, signature, m))

@@ -58,7 +58,7 @@ Example (all keys optional; these are the defaults)::
 
     [output]
     dir = "recordings"
-    chunk_interval_s = 1.0
+    chunk_interval_s = 0.25         # the open chunk goes to disk this often: kill -9 loses <= this + 0.25 s
 """
 
 from __future__ import annotations
@@ -206,7 +206,8 @@ class SensorsSection(_Section, frozen=True, kw_only=True):
 
 class OutputSection(_Section, frozen=True, kw_only=True):
     dir: Path = Path("recordings")
-    chunk_interval_s: Annotated[float, Meta(gt=0.0, le=1.0)] = 1.0  # crash loss <= 1 s
+    # kill -9 / power cut loses at most this + WRITE_ALLOWANCE_S (0.25 s) of log: <= 1 s (icgt.recording.writer)
+    chunk_interval_s: Annotated[float, Meta(gt=0.0, le=0.75)] = 0.25
     file_mode: Annotated[int, Meta(ge=0, le=0o777)] = 0o600  # recordings are private by default
 
 

@@ -421,7 +421,9 @@ class ChunkTail:
                 break  # not complete yet
             if opcode == Opcode.CHUNK and length >= _CHUNK_TIMES.size:
                 _, last = _CHUNK_TIMES.unpack_from(data, pos + _RECORD_HEAD.size)
-                self.newest_log_time_ns = last if self.newest_log_time_ns is None else max(last, self.newest_log_time_ns)
+                self.newest_log_time_ns = (
+                    last if self.newest_log_time_ns is None else max(last, self.newest_log_time_ns)
+                )
                 self.chunks += 1
             pos = end
         self._offset += pos

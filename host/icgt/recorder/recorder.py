@@ -682,6 +682,7 @@ class Recorder:
                 stream_rates=rates,
                 decode_systems=self._expanded_systems,
                 signing_key=self._signing_key,
+                udp_receive_buffer_bytes=cfg.udp_receive_buffer_bytes,
                 service_period_s=_MAVLINK_SERVICE_PERIOD_S,
                 owner_pumps=True,  # UDP: read by the worker's steps (_drain), see icgt.mavlink.link
             ),

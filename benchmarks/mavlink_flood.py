@@ -3,10 +3,10 @@
 
     .venv/bin/python benchmarks/mavlink_flood.py [--rates 2000,5000,10000] [--flood-s 8] [--burners N] [--out DIR]
 
-For each rate, the deck_pass scenario is flown with `icgt record` as its own process (icgt.demo.fly) while one
-busy-loop process per core (or `--burners`) keeps the machine loaded. Once the recorder's MAVLink socket is bound, another
-process sends real pymavlink-encoded telemetry of ten foreign systems (benchmarks/recorder_cpu.py's flood: ATTITUDE,
-GLOBAL_POSITION_INT, GPS_RAW_INT, PARAM_VALUE; one frame per datagram) at that rate for `--flood-s` seconds. From
+For each rate, the deck_pass scenario is flown with `icgt record` as its own process (icgt.demo.fly) while
+one busy-loop process per core (or `--burners`) keeps the machine loaded. Once the recorder's MAVLink socket is
+bound, another process sends real pymavlink-encoded telemetry of ten foreign systems (benchmarks/recorder_cpu.py's
+flood: ATTITUDE, GLOBAL_POSITION_INT, GPS_RAW_INT, PARAM_VALUE; one frame per datagram) at that rate for `--flood-s` seconds. From
 the log's last /icgt/counters: the flood frames the recorder read (undecoded_frames: foreign frames are kept raw),
 the datagrams the kernel dropped for its socket (kernel_drops) and the receive buffer it was granted; the kernel's
 own count (/proc/net/udp 'drops' of that port) is read after the flood as a check. Printed per rate: sent, read,
@@ -125,8 +125,9 @@ def main() -> int:
         # Linux books twice the SO_RCVBUF value it reports as granted (room for its overhead): sk_rcvbuf
         hold_s = 2 * granted / charge / hz if granted else float("nan")
         rows.append((hz, flood.sent, flood.took_s, read_n, drops, flood.kernel_drops, granted, asked, hold_s))
-        print(f"  {hz:,.0f} msg/s: {burners.count} burners, load {load:.1f}: sent {flood.sent} in {flood.took_s:.1f} s, "
-              f"read {read_n}, kernel drops {drops} (kernel's count {flood.kernel_drops})", flush=True)  # fmt: skip
+        print(f"  {hz:,.0f} msg/s: {burners.count} burners, load {load:.1f}: sent {flood.sent} in "
+              f"{flood.took_s:.1f} s, read {read_n}, kernel drops {drops} (kernel's count {flood.kernel_drops})",
+              flush=True)  # fmt: skip
         time.sleep(3.0)
     print(f"MAVLink flood on the recorder's UDP port, {burners.count} busy loops on {os.cpu_count()} CPUs, deck_pass")
     print(f"{'rate msg/s':>11s} {'sent':>7s} {'read':>7s} {'dropped':>8s} {'kernel':>7s} {'unaccounted':>12s}  bound")

@@ -79,6 +79,7 @@ def test_every_datagram_of_a_flood_is_read_or_counted_as_a_kernel_drop(pump_ever
         link.stop()  # told at most once a second while it lasts, and what is left when the link stops
         told = [e for e in events if e.kind is LinkEventKind.KERNEL_DROPS]
         assert bool(told) == bool(stats.kernel_drops), events
+        assert sum(e.count for e in told) == stats.kernel_drops, told
         if told:
             assert f"{granted} bytes granted" in told[-1].detail, told[-1]
             assert f"({stats.kernel_drops} so far)" in told[-1].detail, told[-1]

@@ -617,7 +617,7 @@ class MavlinkLink:
             f"{since} datagrams dropped by the kernel ({total} so far): the UDP receive buffer was full, "
             f"{granted} bytes granted, {why}; this process did not read them in time"
         )
-        self._emit(MavlinkEvent(LinkEventKind.KERNEL_DROPS, now, 0, 0, detail=detail), logging.WARNING)
+        self._emit(MavlinkEvent(LinkEventKind.KERNEL_DROPS, now, 0, 0, detail=detail, count=since), logging.WARNING)
 
     @staticmethod
     def _note_sender(conn: Any, addr: Any) -> None:

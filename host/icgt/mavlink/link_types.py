@@ -65,6 +65,7 @@ class MavlinkEvent:
     component: int
     outage_ns: int | None = None
     detail: str = ""
+    count: int = 0  # KERNEL_DROPS: the datagrams dropped since the last such event
 
 
 @dataclasses.dataclass(frozen=True, slots=True)

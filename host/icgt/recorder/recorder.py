@@ -740,7 +740,7 @@ class Recorder:
 
     def _on_mavlink_event(self, event: MavlinkEvent) -> None:
         # MavlinkLink logs the event itself (icgt.mavlink.link, also on /icgt/log); here it only goes on the topic.
-        self._write_event("mavlink", event.kind.value, event.detail, event.host_ns, 0, event.outage_ns or 0)
+        self._write_event("mavlink", event.kind.value, event.detail, event.host_ns, event.count, event.outage_ns or 0)
 
     # ------------------------------------------------------------------ frames
     def _emit(self, records: list[FrameRecord]) -> None:

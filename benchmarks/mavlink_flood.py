@@ -4,15 +4,16 @@
     .venv/bin/python benchmarks/mavlink_flood.py [--rates 2000,5000,10000] [--flood-s 8] [--burners N] [--out DIR]
 
 For each rate, the deck_pass scenario is flown with `icgt record` as its own process (icgt.demo.fly) while
-one busy-loop process per core (or `--burners`) keeps the machine loaded. Once the recorder's MAVLink socket is
-bound, another process sends real pymavlink-encoded telemetry of ten foreign systems (benchmarks/recorder_cpu.py's
-flood: ATTITUDE, GLOBAL_POSITION_INT, GPS_RAW_INT, PARAM_VALUE; one frame per datagram) at that rate for `--flood-s` seconds. From
-the log's last /icgt/counters: the flood frames the recorder read (undecoded_frames: foreign frames are kept raw),
-the datagrams the kernel dropped for its socket (kernel_drops) and the receive buffer it was granted; the kernel's
-own count (/proc/net/udp 'drops' of that port) is read after the flood as a check. Printed per rate: sent, read,
-dropped, sent - read - dropped (0: every datagram accounted for; negative: autopilot datagrams were dropped too),
-and the bound: how long the granted buffer lets the recorder be held up at that rate before the kernel drops
-(buffer / the kernel's per-datagram charge, measured, / rate).
+one busy-loop process per core (or `--burners`) keeps the machine loaded. Once the recorder's MAVLink socket
+is bound, another process sends real pymavlink-encoded telemetry of ten foreign systems (the flood of
+benchmarks/recorder_cpu.py: ATTITUDE, GLOBAL_POSITION_INT, GPS_RAW_INT, PARAM_VALUE; one frame per datagram)
+at that rate for `--flood-s` seconds. From the log's last /icgt/counters: the flood frames the recorder read
+(undecoded_frames: foreign frames are kept raw), the datagrams the kernel dropped for its socket
+(kernel_drops) and the receive buffer it was granted; the kernel's own count (/proc/net/udp 'drops' of that
+port) is read after the flood as a check. Printed per rate: sent, read, dropped, sent - read - dropped (0:
+every datagram accounted for; negative: autopilot datagrams were dropped too), and the bound: how long the
+granted buffer lets the recorder be held up at that rate before the kernel drops (twice the granted size, as
+Linux books it, / the kernel's per-datagram charge, measured, / rate).
 """
 
 from __future__ import annotations

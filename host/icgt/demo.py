@@ -100,7 +100,7 @@ surface_normal_enu = [{n[0]}, {n[1]}, {n[2]}]
 
 [output]
 dir = "{out_dir}"
-chunk_interval_s = 1.0
+chunk_interval_s = 0.25
 """
 
 

@@ -62,6 +62,9 @@ BAD: list[tuple[str, str, object]] = [
     ("camera", "max_wait_ms", -5.0),
     ("camera", "surface_normal_enu", [0.0, 0.0]),
     ("camera", "origin", [95.0, 0.0, 0.0]),
+    ("mavlink", "udp_receive_buffer_bytes", 1024),
+    ("mavlink", "udp_receive_buffer_bytes", 1 << 31),
+    ("output", "chunk_interval_s", 1.0),  # with 0.25 s in flight, kill -9 would lose more than 1 s
     ("output", "chunk_interval_s", 5.0),
     ("output", "chunk_interval_s", 0.0),
     ("output", "dir", 5),

@@ -68,6 +68,8 @@ from icgt.mavlink.udp_stamps import (
     SO_TIMESTAMPNS,
     TIMESPEC,
     enable_stamps,
+    rmem_max,
+    socket_drops,
     stamps_enabled,
     wait_until_arrivals_stamped,
 )
@@ -163,7 +165,10 @@ class MavlinkLink:
         self._recent_sent: deque[bytes] = deque(maxlen=256)  # to tell our echoes from a device with our ids
         self._ts_sent = 0
         self._undecoded = 0
-        self.receive_buffer_bytes = 0  # the UDP socket's receive buffer once open [bytes]
+        self.receive_buffer_bytes = 0  # the UDP socket's receive buffer once open: what the kernel granted [bytes]
+        self.receive_buffer_asked_bytes = 0  # ... and what was asked (config.udp_receive_buffer_bytes) [bytes]
+        self._drop_sock: socket.socket | None = None  # the UDP socket whose kernel drop count is followed
+        self._drops_reported = 0  # kernel drops told in a KERNEL_DROPS event so far
         self._kernel_stamps = False  # SO_TIMESTAMPNS on (Linux): datagrams carry their arrival time
         self._kernel_drops = 0  # datagrams the kernel dropped (receive buffer full), all sockets so far
         self._socket_drops = 0  # ... of which the current socket's
@@ -214,6 +219,8 @@ class MavlinkLink:
         if not self._datagram or not isinstance(sock, socket.socket):
             return
         want = self.config.udp_receive_buffer_bytes
+        self._socket_drops = 0  # a new socket counts from 0
+        self._drop_sock = sock
         with contextlib.suppress(OSError):
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, want)
         got = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) // 2  # Linux reports twice what it books
@@ -224,10 +231,16 @@ class MavlinkLink:
                 wait_until_arrivals_stamped()
             if stamps_enabled(sock):
                 self._kernel_stamps = True
-                self._socket_drops = 0  # a new socket counts from 0
         if got < want:
-            log.warning("UDP receive buffer is %d bytes, %d asked (raise net.core.rmem_max to allow it)", got, want)
+            log.warning(
+                "UDP receive buffer is %d bytes, %d asked: the kernel caps it at net.core.rmem_max (%s bytes); "
+                "raise that to allow it",
+                got,
+                want,
+                rmem_max(),
+            )
         self.receive_buffer_bytes = got
+        self.receive_buffer_asked_bytes = want
 
     def stop(self, timeout_s: float = 2.0) -> None:
         """Stop both threads (joined) and close the transport. Safe to call twice."""
@@ -241,6 +254,7 @@ class MavlinkLink:
             with contextlib.suppress(Exception):
                 self._drain_stamped(self._conn, self._conn.port)
         self._pumped = False
+        self._poll_kernel_drops(final=True)  # the socket's last count, before it closes
         with self._send_lock:
             self._close_transport()
 
@@ -395,6 +409,7 @@ class MavlinkLink:
 
     def stats(self) -> LinkStats:
         signing = self.signing.counts if self.signing is not None else {}
+        self._poll_kernel_drops()
         with self._lock:
             return LinkStats(
                 **signing,
@@ -415,6 +430,8 @@ class MavlinkLink:
                 outages=self._outages,
                 transport_errors=self._transport_errors,
                 kernel_drops=self._kernel_drops,
+                udp_receive_buffer_bytes=self.receive_buffer_bytes,
+                udp_receive_buffer_asked_bytes=self.receive_buffer_asked_bytes,
             )
 
     # ------------------------------------------------------------------ reader thread
@@ -559,23 +576,48 @@ class MavlinkLink:
                 self._count_kernel_drops(drops)
         return read
 
-    def _count_kernel_drops(self, socket_drops: int) -> None:
-        """The socket's count of datagrams dropped by the kernel went up: counted (stats) and said."""
-        new = (socket_drops - self._socket_drops) % (1 << 32)  # a u32 that may wrap
-        self._socket_drops = socket_drops
-        with self._lock:
-            self._kernel_drops += new
-            total = self._kernel_drops
-        now = time.monotonic_ns()
-        if now - self._drops_warned_ns < 1_000_000_000:  # said at most once a second; always counted
+    def _poll_kernel_drops(self, *, final: bool = False) -> None:
+        """The socket's drop count read now (SO_MEMINFO): drops are counted when they happen, not only when a
+        later datagram brings the count (SO_RXQ_OVFL), so a flood that ends in drops is counted in full.
+        `final`: the socket is about to close, any drops not yet in an event are told now."""
+        sock = self._drop_sock
+        if sock is None:
             return
-        self._drops_warned_ns = now
-        log.warning(
-            "the kernel dropped MAVLink datagrams, %d so far: the UDP receive buffer (%d bytes) was full, "
-            "this process did not read fast enough",
-            total,
-            self.receive_buffer_bytes,
+        count = socket_drops(sock)
+        if count is not None and count != self._socket_drops:
+            self._count_kernel_drops(count, final=final)
+        elif final:
+            self._count_kernel_drops(self._socket_drops, final=True)
+
+    def _count_kernel_drops(self, socket_drops: int, *, final: bool = False) -> None:
+        """The socket's count of datagrams dropped by the kernel (sk_drops, a u32 that may wrap): what it went up
+        by is counted (stats) and told in a KERNEL_DROPS event with its cause, at most once a second."""
+        now = self._clock()
+        with self._lock:
+            new = (socket_drops - self._socket_drops) % (1 << 32)
+            if new >= 1 << 31:
+                new = 0  # an older reading than the one counted (another thread's): nothing new
+            else:
+                self._socket_drops = socket_drops
+                self._kernel_drops += new
+            total = self._kernel_drops
+            if total == self._drops_reported or (not final and now - self._drops_warned_ns < 1_000_000_000):
+                return
+            since = total - self._drops_reported
+            self._drops_reported = total
+            self._drops_warned_ns = now
+        granted, asked = self.receive_buffer_bytes, self.receive_buffer_asked_bytes
+        cap = rmem_max()
+        why = (
+            f"asked {asked}, the kernel capped it at net.core.rmem_max ({cap} bytes)"
+            if granted < asked
+            else f"as asked ([mavlink] udp_receive_buffer_bytes; net.core.rmem_max {cap} bytes)"
         )
+        detail = (
+            f"{since} datagrams dropped by the kernel ({total} so far): the UDP receive buffer was full, "
+            f"{granted} bytes granted, {why}; this process did not read them in time"
+        )
+        self._emit(MavlinkEvent(LinkEventKind.KERNEL_DROPS, now, 0, 0, detail=detail, count=since), logging.WARNING)
 
     @staticmethod
     def _note_sender(conn: Any, addr: Any) -> None:
@@ -841,6 +883,7 @@ class MavlinkLink:
                 conn.close()
 
     def _transport_failed(self, exc: BaseException) -> None:
+        self._poll_kernel_drops(final=True)  # the closing socket's last count
         with self._send_lock:
             self._close_transport()
         with self._lock:
@@ -889,6 +932,7 @@ class MavlinkLink:
                 log.exception("MAVLink service step failed")
 
     def _service_once(self, now: int) -> None:
+        self._poll_kernel_drops()
         events: list[tuple[MavlinkEvent, int]] = []
         send_timesync = False
         rate_to_send: StreamRate | None = None

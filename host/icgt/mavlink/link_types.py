@@ -51,6 +51,7 @@ class LinkEventKind(enum.Enum):
     TRANSPORT_ERROR = "transport_error"
     TRANSPORT_REOPENED = "transport_reopened"
     RATE_REQUEST = "rate_request"
+    KERNEL_DROPS = "kernel_drops"  # the kernel dropped datagrams (UDP receive buffer full): count and buffer size
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -64,6 +65,7 @@ class MavlinkEvent:
     component: int
     outage_ns: int | None = None
     detail: str = ""
+    count: int = 0  # KERNEL_DROPS: the datagrams dropped since the last such event
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -200,8 +202,11 @@ class LinkStats:
     undecoded_frames: int
     outages: int
     transport_errors: int
-    # UDP datagrams the kernel dropped because the socket's receive buffer was full (SO_RXQ_OVFL, Linux)
+    # UDP datagrams the kernel dropped because the socket's receive buffer was full (SO_MEMINFO / SO_RXQ_OVFL,
+    # Linux), and that buffer: what was asked (udp_receive_buffer_bytes) and what the kernel granted [bytes]
     kernel_drops: int = 0
+    udp_receive_buffer_bytes: int = 0
+    udp_receive_buffer_asked_bytes: int = 0
     # frames with the autopilot's ids that are not of its stream (another sender: AutopilotPresence)
     second_sender_frames: int = 0
     # with a signing key only: frames received with a valid signature, an invalid one, none

@@ -27,7 +27,10 @@ log = logging.getLogger(__name__)
 # Linux's values (Python's socket module does not name them).
 SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
+SO_MEMINFO = getattr(socket, "SO_MEMINFO", 55)
 TIMESPEC = struct.Struct("qq")  # struct timespec: tv_sec, tv_nsec
+_SK_MEMINFO_DROPS = 8  # index of sk_drops in SO_MEMINFO's u32 array (Linux 4.15+)
+RMEM_MAX_PATH = "/proc/sys/net/core/rmem_max"
 
 PROBE_WAIT_S = 2.0
 """How long the bind waits for the kernel to stamp arrivals before it goes ahead without [s]."""
@@ -51,6 +54,29 @@ def enable_stamps(sock: socket.socket) -> bool:
     with contextlib.suppress(OSError):
         sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
     return True
+
+
+def socket_drops(sock: socket.socket) -> int | None:
+    """The kernel's count of datagrams it dropped for `sock` (sk_drops: receive buffer full, bad checksum), read
+    now with SO_MEMINFO; the same counter SO_RXQ_OVFL reports and /proc/net/udp's 'drops' column shows. None where
+    the platform does not tell (not Linux, an old kernel, a closed socket)."""
+    try:
+        raw = sock.getsockopt(socket.SOL_SOCKET, SO_MEMINFO, 64)
+    except OSError:
+        return None
+    if len(raw) < 4 * (_SK_MEMINFO_DROPS + 1):
+        return None
+    value: int = struct.unpack_from("I", raw, 4 * _SK_MEMINFO_DROPS)[0]
+    return value
+
+
+def rmem_max() -> int | None:
+    """net.core.rmem_max [bytes]: the most SO_RCVBUF may grant an unprivileged process; None if unreadable."""
+    try:
+        with open(RMEM_MAX_PATH) as f:
+            return int(f.read().strip())
+    except (OSError, ValueError):
+        return None
 
 
 def arrivals_stamped(probe: socket.socket) -> bool:

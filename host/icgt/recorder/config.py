@@ -23,6 +23,9 @@ Example (all keys optional; these are the defaults)::
                                    # ids 255 = QGroundControl, Mission Planner, MAVProxy (their default
                                    # --source-system), 245 = MAVSDK as a ground station. Others: COMMAND_ACK DENIED
     global_position_hz = 50.0
+    udp_receive_buffer_bytes = 4194304  # SO_RCVBUF asked for a UDP link (4 MiB: ~1 s of a 10 k msg/s flood); the
+                                   # kernel grants at most net.core.rmem_max. Granted size and kernel drops: in
+                                   # /icgt/counters, kernel_drops link events and `icgt info`
     # signing_key_file = "/etc/icgt/mavlink.key"   # MAVLink 2 signing (off when absent): a file holding a
                                    # passphrase; the key is its SHA-256, as QGroundControl and MAVProxy derive it.
                                    # Our messages are signed; commands without a valid signature are ignored.
@@ -58,7 +61,7 @@ Example (all keys optional; these are the defaults)::
 
     [output]
     dir = "recordings"
-    chunk_interval_s = 1.0
+    chunk_interval_s = 0.25         # the open chunk goes to disk this often: kill -9 loses <= this + 0.25 s
 """
 
 from __future__ import annotations
@@ -130,6 +133,7 @@ class MavlinkSection(_Section, frozen=True, kw_only=True):
     component_id: _ComponentId = 100  # MAV_COMP_ID_CAMERA; 101-106 (CAMERA2..6) when 100 is taken
     ground_station_systems: Annotated[tuple[_SystemId, ...], Meta(min_length=1)] = (255, 245)
     global_position_hz: Annotated[float, Meta(gt=0.0, le=200.0)] = 50.0
+    udp_receive_buffer_bytes: Annotated[int, Meta(ge=65_536, le=1 << 30)] = 4 * 1024 * 1024
     signing_key_file: Path | None = None  # a passphrase file (icgt.mavlink.signing); None: no signing
 
 
@@ -206,7 +210,8 @@ class SensorsSection(_Section, frozen=True, kw_only=True):
 
 class OutputSection(_Section, frozen=True, kw_only=True):
     dir: Path = Path("recordings")
-    chunk_interval_s: Annotated[float, Meta(gt=0.0, le=1.0)] = 1.0  # crash loss <= 1 s
+    # kill -9 / power cut loses at most this + WRITE_ALLOWANCE_S (0.25 s) of log: <= 1 s (icgt.recording.writer)
+    chunk_interval_s: Annotated[float, Meta(gt=0.0, le=0.75)] = 0.25
     file_mode: Annotated[int, Meta(ge=0, le=0o777)] = 0o600  # recordings are private by default
 
 

@@ -682,6 +682,7 @@ class Recorder:
                 stream_rates=rates,
                 decode_systems=self._expanded_systems,
                 signing_key=self._signing_key,
+                udp_receive_buffer_bytes=cfg.udp_receive_buffer_bytes,
                 service_period_s=_MAVLINK_SERVICE_PERIOD_S,
                 owner_pumps=True,  # UDP: read by the worker's steps (_drain), see icgt.mavlink.link
             ),
@@ -739,7 +740,7 @@ class Recorder:
 
     def _on_mavlink_event(self, event: MavlinkEvent) -> None:
         # MavlinkLink logs the event itself (icgt.mavlink.link, also on /icgt/log); here it only goes on the topic.
-        self._write_event("mavlink", event.kind.value, event.detail, event.host_ns, 0, event.outage_ns or 0)
+        self._write_event("mavlink", event.kind.value, event.detail, event.host_ns, event.count, event.outage_ns or 0)
 
     # ------------------------------------------------------------------ frames
     def _emit(self, records: list[FrameRecord]) -> None:

@@ -389,3 +389,42 @@ def _describe_oserror(exc: BaseException) -> str:
     if isinstance(exc, OSError):
         return f"write error ({exc.strerror or exc})"
     return f"internal error ({type(exc).__name__}: {exc})"
+
+
+_RECORD_HEAD = struct.Struct("<BQ")
+_CHUNK_TIMES = struct.Struct("<QQ")  # a Chunk record starts with message_start_time, message_end_time
+
+
+class ChunkTail:
+    """Follows a growing (or killed) MCAP file from outside: the newest log time its complete chunks hold.
+
+    Reads only record headers, from where the last call stopped, so polling a file being recorded is cheap;
+    a record not yet complete on disk is read again next time. Times: ns since the Unix epoch.
+    """
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = os.fspath(path)
+        self._offset = len(MAGIC)
+        self.newest_log_time_ns: int | None = None
+        self.chunks = 0
+
+    def poll(self) -> int | None:
+        """Reads what was added since the last call; the newest log time on disk (None: no chunk yet)."""
+        with open(self.path, "rb") as f:
+            f.seek(self._offset)
+            data = f.read()
+        pos = 0
+        while pos + _RECORD_HEAD.size <= len(data):
+            opcode, length = _RECORD_HEAD.unpack_from(data, pos)
+            end = pos + _RECORD_HEAD.size + length
+            if end > len(data):
+                break  # not complete yet
+            if opcode == Opcode.CHUNK and length >= _CHUNK_TIMES.size:
+                _, last = _CHUNK_TIMES.unpack_from(data, pos + _RECORD_HEAD.size)
+                self.newest_log_time_ns = (
+                    last if self.newest_log_time_ns is None else max(last, self.newest_log_time_ns)
+                )
+                self.chunks += 1
+            pos = end
+        self._offset += pos
+        return self.newest_log_time_ns

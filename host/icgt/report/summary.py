@@ -90,6 +90,8 @@ class FlightData:
     """Track samples not drawn, by reason (NO_FIX, OUTSIDE)."""
     sync_counters: dict[str, int] = field(default_factory=dict)
     """The synchroniser's last counters (/icgt/counters)."""
+    mavlink_counters: dict[str, int] = field(default_factory=dict)
+    """The MAVLink link's last counters (/icgt/counters: kernel drops, the UDP receive buffer granted)."""
     device_stopped_itself: str | None = None
     """The device stopped the capture by itself, its host silent for the host timeout (the recorder's account of
     the DEVICE_STATE that said so when the link came back)."""
@@ -124,6 +126,7 @@ def gather(recording: Any, images: Path | None = None) -> FlightData:
     events: list[dict[str, Any]] = []
     status: dict[str, int] = {}
     sync_counters: dict[str, int] = {}
+    mavlink_counters: dict[str, int] = {}
     first = next(iter(recording.records()), None)
     if first is not None:
         t0 = _host_ns(first.time_ns, offset)
@@ -146,6 +149,8 @@ def gather(recording: Any, images: Path | None = None) -> FlightData:
             status = {k: int(v) for k, v in d.items() if isinstance(v, int)}
         elif msg.topic == layout.COUNTERS and isinstance(d.get("sync"), dict):
             sync_counters = {k: int(v) for k, v in d["sync"].items() if isinstance(v, int)}
+            if isinstance(d.get("mavlink"), dict):
+                mavlink_counters = {k: int(v) for k, v in d["mavlink"].items() if isinstance(v, int)}
     if t0 is None:
         raise ReportError(f"{recording.path}: the recording is empty")
     last = t0
@@ -189,6 +194,7 @@ def gather(recording: Any, images: Path | None = None) -> FlightData:
         topics=topics,
         note=getattr(recording, "note", None),
         sync_counters=sync_counters,
+        mavlink_counters=mavlink_counters,
         track_left_out={k: v for k, v in left_out.items() if v},
     )
     _events(data, events)
@@ -402,6 +408,9 @@ def summarize(data: FlightData) -> list[tuple[str, str]]:
                 f"{second} from a second sender, {unsigned} without a valid signature (kept out of clocks and poses)",
             )
         )
+    kernel_row = kernel_drops_row(data.mavlink_counters)
+    if kernel_row is not None:
+        rows.append(kernel_row)
     lost = sum(x.count for x in data.losses if x.kind == "sequence_gap")
     rejected = sum(x.count for x in data.losses if x.kind == "frames_rejected")
     rows.append(("device messages missing / corrupt frames", f"{lost} / {rejected}"))
@@ -448,6 +457,22 @@ def summarize(data: FlightData) -> list[tuple[str, str]]:
     if data.note:
         rows.append(("note", data.note))
     return rows
+
+
+def kernel_drops_row(counters: dict[str, int]) -> tuple[str, str] | None:
+    """MAVLink datagrams the kernel dropped before the recorder read them, with the receive buffer it granted
+    (None for a log without the count: not UDP, or an older recorder)."""
+    granted = counters.get("udp_receive_buffer_bytes", 0)
+    if "kernel_drops" not in counters or not granted:
+        return None
+    drops = counters["kernel_drops"]
+    asked = counters.get("udp_receive_buffer_asked_bytes", 0)
+    buffer = f"UDP receive buffer {granted} bytes granted" + (
+        f" of {asked} asked (capped by net.core.rmem_max)" if asked > granted else ""
+    )
+    if not drops:
+        return ("MAVLink datagrams dropped by the kernel", f"0 ({buffer})")
+    return ("MAVLink datagrams dropped by the kernel", f"{drops}: the buffer was full ({buffer}), not read in time")
 
 
 def _counts(c: Counter[str]) -> str:

@@ -9,7 +9,8 @@ serial and UDP links, a ground station commanding capture). The recorder's resid
 /proc/PID/status) is read every 10 s and printed per minute; the growth is the least-squares slope over the
 second half of the capture (the first half holds the warm-up: the telemetry kept for the device's history
 horizon, about 11-12 min with the simulated Teensy 4.1's rings, fills for that long; so only a soak of
-more than twice the horizon, the default 30 min, says whether the rest is flat). Bound: flat after warm-up, <= GROWTH_BOUND_MIB_PER_MIN. What may grow
+more than twice the horizon, the default 30 min, says whether the rest is flat).
+Bound: flat after warm-up, <= GROWTH_BOUND_MIB_PER_MIN. What may grow
 with the recording and is stated: the camera image history for ground-station re-requests (about 200 bytes
 per image, 0.06 MiB/min at 5 fps).
 

@@ -10,6 +10,6 @@ if sys.version_info < (3, 11):  # noqa: UP036 - this check is what tells an olde
 
 from icgt.errors import IcgtError
 from icgt.ingest import read as read
+from icgt.version import __version__
 
 __all__ = ["IcgtError", "__version__"]
-__version__ = "0.1.0"

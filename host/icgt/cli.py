@@ -13,10 +13,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from icgt import __version__
 from icgt.errors import IcgtError
 from icgt.protocol import PROTOCOL_VERSION, TABLE_HASH, StreamDecoder
 from icgt.protocol.canonical import dumps, message_dict
+from icgt.version import __version__
 
 log = logging.getLogger("icgt")
 

@@ -15,7 +15,6 @@ import json
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -28,80 +27,13 @@ from pymavlink import mavutil
 
 from icgt.errors import IcgtError
 from icgt.sim.evaluate import evaluate, read_frames, read_truth
-from icgt.sim.scenario import Camera, Scenario, load_scenario
+from icgt.sim.recorder_setup import GCS_SYSTEM, free_udp_port, recorder_config_text
+from icgt.sim.scenario import Scenario, load_scenario
 from icgt.sim.session import HOLD_MAX_S, SimSession
 from icgt.sim.truth import ClockMaps
 
-GCS_SYSTEM = 255
 GCS_COMPONENT = 190
 CAMERA_COMPONENT = 100
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
-
-
-def feedback_min_lag_s(cam: Camera) -> float:
-    """The shortest shutter lag a crew would configure for this body: its lag less twice its jitter and 5 ms."""
-    return max(0.0, (cam.shutter_latency_us - 2 * cam.shutter_jitter_us - 5_000) / 1e6)
-
-
-def recorder_config_text(
-    sc: Scenario,
-    out_dir: Path,
-    *,
-    ground_stations: tuple[int, ...] = (GCS_SYSTEM,),
-    signing_key_file: Path | None = None,
-    host_timeout_s: float | None = None,
-) -> str:
-    """The recorder configuration a crew would write for this airframe (from the scenario's camera);
-    `host_timeout_s` None: the default ([capture] host_timeout_s)."""
-    cam, cap, sen = sc.camera, sc.camera.capture, sc.sensors
-    n = sc.structure.normal
-    signing = f'signing_key_file = "{signing_key_file}"' if signing_key_file is not None else ""
-    return f"""# written by icgt demo for scenario {sc.name}
-[device]
-set_rtc = true
-
-[mavlink]
-system_id = {sc.autopilot.system_id}
-ground_station_systems = [{", ".join(str(g) for g in ground_stations)}]
-global_position_hz = 50.0
-{signing}
-
-[capture]
-mode = "{cap.mode}"
-interval_s = {(cap.interval_ms if cap.mode == "interval" else 1000.0 / cap.burst_fps) / 1000.0}
-focus_lead_s = {cap.focus_ms / 1000.0}
-burst_s = {cap.burst_ms / 1000.0}
-shutter_pulse_s = 0.02
-{"" if host_timeout_s is None else f"host_timeout_s = {host_timeout_s}"}
-
-[sensors]
-feedback_min_lag_s = {feedback_min_lag_s(cam)}
-imu_rate_hz = {int(sen.imu_rate_hz)}
-range_rate_hz = {int(sen.range_rate_hz)}
-lidar_model = "{sen.lidar_model}"
-
-[camera]
-focal_length_mm = {cam.focal_length_mm}
-sensor_width_mm = {cam.sensor_width_mm}
-image_width_px = {cam.image_width_px}
-image_height_px = {cam.image_height_px}
-mount_roll_deg = {cam.mount_roll_deg}
-mount_pitch_deg = {cam.mount_pitch_deg}
-mount_yaw_deg = {cam.mount_yaw_deg}
-lever_arm_body_m = [{cam.lever_arm_m[0]}, {cam.lever_arm_m[1]}, {cam.lever_arm_m[2]}]
-gimbal_stabilised = {"true" if cam.stabilised else "false"}
-surface_normal_enu = [{n[0]}, {n[1]}, {n[2]}]
-
-[output]
-dir = "{out_dir}"
-chunk_interval_s = 0.25
-"""
 
 
 class GroundStation:

@@ -22,9 +22,9 @@ import pytest
 
 from icgt.cli import main
 from icgt.control import request
-from icgt.demo import free_udp_port, recorder_config_text
 from icgt.ingest import read
 from icgt.recording import layout
+from icgt.sim.recorder_setup import free_udp_port, recorder_config_text
 from icgt.sim.scenario import load_scenario
 from icgt.sim.session import SimSession
 from icgt.sim.truth import read_events

@@ -19,8 +19,8 @@ from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 
 from icgt.control import request
-from icgt.demo import free_udp_port, recorder_config_text
 from icgt.recording import recover
+from icgt.sim.recorder_setup import free_udp_port, recorder_config_text
 from icgt.sim.scenario import load_scenario
 from icgt.sim.session import SimSession
 

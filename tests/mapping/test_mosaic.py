@@ -28,9 +28,9 @@ from icgt.mapping.cli import run_map
 from icgt.mapping.place import Errors
 from icgt.mapping.pose import world_to_pixel
 from icgt.sim.camera_card import _image, read_frame_number
+from icgt.sim.face import FaceFrame
 from icgt.sim.map_truth import geotag_errors_m
 from icgt.sim.render import render
-from icgt.sim.surface import FaceFrame
 
 from .conftest import LOOKAHEAD_S, DamageFlight
 

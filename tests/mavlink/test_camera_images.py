@@ -7,10 +7,12 @@ import logging
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from icgt.geotag.record import POOR_POSE_FLAGS
 from icgt.mapping.cli import UNTRUSTED_POSE
-from icgt.mavlink.camera_images import POOR_POSE_FLAGS, image_range, pose_verdict
+from icgt.mavlink.camera_images import image_range
 from icgt.mavlink.home import HomeAltitude
 from icgt.mavlink.ratelimit import ThrottledLog, TokenBucket
+from icgt.recorder.camera_link import pose_verdict
 
 
 @pytest.mark.parametrize(

@@ -16,10 +16,10 @@ from pathlib import Path
 
 import pytest
 
-from icgt.demo import free_udp_port
 from icgt.recorder import Recorder
 from icgt.recorder.capture import ConfigureRefusedError
 from icgt.recorder.config import RecorderConfig, parse_config
+from icgt.sim.recorder_setup import free_udp_port
 from icgt.sim.scenario import load_scenario
 from icgt.sim.session import find_device_binary
 from icgt.sim.truth import write_sensor_truth

@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 
 from icgt.clocks.autopilot_clock import GPS_EPOCH_UNIX_S
-from icgt.geodesy import LocalFrame
-from icgt.geotag.record import FrameRecord
-from icgt.trajectories.gpstime import (
+from icgt.clocks.gpstime import (
     GpsTimeError,
     leap_seconds_at_utc,
     utc_us_to_gps_week_tow_us,
     week_tow_to_utc_s,
 )
-from icgt.trajectories.ppk_events import PpkEventsError, read_mrk
+from icgt.export.ppk_events import PpkEventsError, read_mrk
+from icgt.geodesy import LocalFrame
+from icgt.geotag.record import FrameRecord
 from icgt.trajectories.rtklib_pos import PosOptions, read_pos
 from icgt.trajectories.source import PoseFix, PoseMiss, TrajectoryError
 from icgt.trajectories.tum import Alignment4Dof, TumOptions, read_tum

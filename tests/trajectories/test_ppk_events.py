@@ -11,9 +11,9 @@ import numpy as np
 import icgt
 from icgt.cli import main
 from icgt.clocks.autopilot_clock import GPS_EPOCH_UNIX_S, GPS_UTC_LEAP_S
+from icgt.export.ppk_events import EVENTS_CSV, MRK_FILE, read_mrk
 from icgt.geodesy import q_rotate
 from icgt.ingest.recompute import recording_config
-from icgt.trajectories.ppk_events import EVENTS_CSV, MRK_FILE, read_mrk
 
 from .conftest import Truth
 

@@ -10,7 +10,7 @@ cameras.geojson, footprints.geojson, icgt.kml (absolute MSL heights), geo.txt, e
 images/ (geotagged copies; the originals are only read), with ``fgb`` the same layers as FlatGeobuf
 (cameras.fgb, footprints.fgb, footprints_face.fgb), with ``ros2`` the ROS 2 bag ros2/ (not by
 default: it holds every sensor sample), with ``ppk`` the exposure events in GPS time for PPK tools
-(events_gpst.csv, Timestamp.MRK: `icgt.trajectories.ppk_events`), with ``mcap`` foxglove.mcap (the
+(events_gpst.csv, Timestamp.MRK: `icgt.export.ppk_events`), with ``mcap`` foxglove.mcap (the
 log with every paired image on the timeline: `icgt.export.foxglove_mcap`) and problems.csv (one row per input problem:
 no fix, zero GPS, no UTC, an image without EXIF time or without an exposure, an exposure without an
 image, a damaged image, a camera GPS far from the log, HEIC files, RAW files without their JPEG;
@@ -398,7 +398,7 @@ def _run_export(
         written["foxglove.mcap messages"] = fox["copied"]
         written["foxglove.mcap images"] = fox["images"]
     if "ppk" in wanted:
-        from icgt.trajectories.cli import export_ppk
+        from icgt.export.ppk_events import export_ppk
 
         written.update(export_ppk(recording, frames, out_dir, problems, geoid_separation_m=geoid))
     problems.write_csv(out_dir / PROBLEMS_FILE)

@@ -20,8 +20,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from icgt.field_doc import Doc
 from icgt.geotag.record import FrameRecord
-from icgt.recording.schemas import Doc
 
 MSG_TYPE = "icgt_msgs/msg/FrameRecord"
 MSG_RESOURCE = "msg/FrameRecord.msg"

@@ -12,7 +12,7 @@ import enum
 from dataclasses import dataclass
 from typing import Annotated
 
-from icgt.recording.schemas import Doc
+from icgt.field_doc import Doc
 
 
 class PositionSource(enum.StrEnum):

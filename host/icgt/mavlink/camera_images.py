@@ -1,4 +1,4 @@
-"""The camera's images as MAVLink publishes them: indices, the poor-pose policy, history and re-requests.
+"""The camera's images as MAVLink publishes them: indices, history and re-requests.
 
 Indices (Camera Protocol v2): every image the recorder logs gets the next index, from 0, whatever caused
 it (a ground-station command, the control socket, an interval, a manual shot on the camera seen by the
@@ -7,14 +7,8 @@ the number of images so far, so the newest image is image_count - 1. The device 
 itself (FrameRecord.image_index, 0 for an unsolicited exposure); the log's ``/camera/images`` topic maps
 each MAVLink index to its frame (``frame_seq``) and the device's trigger number.
 
-Poor poses: the synchroniser already holds a frame until its pose can be interpolated (the next position
-sample came) or its bounded wait ran out; whatever flags the frame then carries are final. A frame whose
-pose is missing or not trustworthy (`POOR_POSE_FLAGS`: no fix, no pose, telemetry expired, stale or
-extrapolated pose, no attitude) or whose
-exposure the camera did not confirm (feedback_missing) is published with ``capture_result`` 0 and, for a
-poor pose, lat = lon = alt = relative_alt = 0 and the quaternion NaN: fields no ground station can take
-for a good fix. ``/camera/images`` says for each image which rule applied, so the log and the ground
-station agree on which images are good; `icgt map` uses the same flags to leave such images out.
+The poor-pose policy (which frames are published without a position) is the recorder's
+(`icgt.recorder.camera_link`): this module carries what it decides.
 
 History: every image of the recording is kept (about 200 bytes each: an hour at 20 fps is ~15 MB) and can
 be re-requested with MAV_CMD_REQUEST_MESSAGE(CAMERA_IMAGE_CAPTURED): param2 the first index (-1: all
@@ -29,16 +23,13 @@ import threading
 from typing import Any
 
 from icgt.errors import IcgtError
-from icgt.geotag.record import POOR_POSE_FLAGS, FrameFlag
 
 __all__ = [
-    "POOR_POSE_FLAGS",
     "CameraError",
     "CapturedImage",
     "ImageHistory",
     "encode_image_captured",
     "image_range",
-    "pose_verdict",
 ]
 
 
@@ -66,18 +57,6 @@ class CapturedImage:
     file_url: str = ""
     camera_id: int = 0
     image_index: int = -1
-
-
-def pose_verdict(flags: list[str]) -> tuple[bool, bool, str]:
-    """(capture_result, position published, reason) for a frame's flags, per the policy above."""
-    poor = [f.value for f in POOR_POSE_FLAGS if f.value in flags]
-    unconfirmed = FrameFlag.FEEDBACK_MISSING.value in flags
-    reasons = []
-    if poor:
-        reasons.append("poor pose (" + ", ".join(poor) + "): no position published")
-    if unconfirmed:
-        reasons.append("the camera did not confirm the exposure (feedback_missing)")
-    return (not poor and not unconfirmed), not poor, "; ".join(reasons) or "good"
 
 
 def _scaled(value: float | None, scale: float, limit: int, what: str) -> int:

@@ -2,11 +2,20 @@
 
 `CameraImages` gets every GLOBAL_POSITION_INT of the vehicle (for home's altitude, `icgt.mavlink.home`)
 and every frame the synchroniser emits, on the recorder's worker thread. For each frame it builds the
-CAMERA_IMAGE_CAPTURED contents under the poor-pose policy (`icgt.mavlink.camera_images`), publishes it
+CAMERA_IMAGE_CAPTURED contents under the poor-pose policy (below), publishes it
 (the camera gives it the next image index) and returns the record for the log's ``/camera/images``
 topic: the MAVLink index next to the frame's ``frame_seq`` and the device's trigger number, what was
 published and why. A frame that cannot be published (a value MAVLink cannot carry) gets no index and a
 record saying so.
+
+Poor poses: the synchroniser already holds a frame until its pose can be interpolated (the next position
+sample came) or its bounded wait ran out; whatever flags the frame then carries are final. A frame whose
+pose is missing or not trustworthy (`POOR_POSE_FLAGS`: no fix, no pose, telemetry expired, stale or
+extrapolated pose, no attitude) or whose
+exposure the camera did not confirm (feedback_missing) is published with ``capture_result`` 0 and, for a
+poor pose, lat = lon = alt = relative_alt = 0 and the quaternion NaN: fields no ground station can take
+for a good fix. ``/camera/images`` says for each image which rule applied, so the log and the ground
+station agree on which images are good; `icgt map` uses the same flags to leave such images out.
 """
 
 from __future__ import annotations
@@ -19,13 +28,14 @@ from icgt.errors import IcgtError
 from icgt.geodesy import q_conjugate, q_multiply
 from icgt.geotag import FrameRecord
 from icgt.geotag.geotagger import _Q_CAM_TO_BODY_BASE
+from icgt.geotag.record import POOR_POSE_FLAGS, FrameFlag
 from icgt.mavlink.camera import CameraComponent, CameraConfig, CameraInfo, CaptureHandler
-from icgt.mavlink.camera_images import CapturedImage, pose_verdict
+from icgt.mavlink.camera_images import CapturedImage
 from icgt.mavlink.home import HomeAltitude
 from icgt.mavlink.link import MavlinkLink
 from icgt.recorder.config import RecorderConfig
 
-__all__ = ["CAMERA_IMAGES_SCHEMA", "CameraImages", "build_camera"]
+__all__ = ["CAMERA_IMAGES_SCHEMA", "CameraImages", "build_camera", "pose_verdict"]
 
 CAMERA_IMAGES_SCHEMA: dict[str, Any] = {
     "type": "object",
@@ -63,6 +73,18 @@ def build_camera(config: RecorderConfig, link: MavlinkLink, handler: CaptureHand
         ),
         handler,
     )
+
+
+def pose_verdict(flags: list[str]) -> tuple[bool, bool, str]:
+    """(capture_result, position published, reason) for a frame's flags, per the policy above."""
+    poor = [f.value for f in POOR_POSE_FLAGS if f.value in flags]
+    unconfirmed = FrameFlag.FEEDBACK_MISSING.value in flags
+    reasons = []
+    if poor:
+        reasons.append("poor pose (" + ", ".join(poor) + "): no position published")
+    if unconfirmed:
+        reasons.append("the camera did not confirm the exposure (feedback_missing)")
+    return (not poor and not unconfirmed), not poor, "; ".join(reasons) or "good"
 
 
 class CameraImages:

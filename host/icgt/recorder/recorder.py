@@ -37,7 +37,6 @@ from typing import Any
 
 import msgspec
 
-from icgt import __version__
 from icgt.control import ControlServer, Reply, Request
 from icgt.device import (
     CommandRefusedError,
@@ -80,6 +79,7 @@ from icgt.recorder.views import FoxgloveViews
 from icgt.recording import McapRecorder, RecordingError, layout
 from icgt.recording.writer import McapLogHandler
 from icgt.sync import SyncConfig, Synchroniser
+from icgt.version import __version__
 
 log = logging.getLogger("icgt.recorder")
 

@@ -33,7 +33,6 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
-from icgt import __version__
 from icgt.device import DeviceAbsentError, DeviceLink, DeviceLinkError, DeviceLinkEvent
 from icgt.errors import IcgtError
 from icgt.protocol import Received
@@ -42,6 +41,7 @@ from icgt.recorder import topics
 from icgt.recorder.device_stop import describe_stop, self_stop_of
 from icgt.recorder.flight_log import KEPT_TYPES, FlightLog, read_flight_log
 from icgt.recording import McapRecorder, RecordingError, layout
+from icgt.version import __version__
 
 __all__ = ["RecoverDeviceError", "RecoveryResult", "recover_device"]
 

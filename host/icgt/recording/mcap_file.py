@@ -44,8 +44,8 @@ from mcap.records import (
     SummaryOffset,
 )
 
-from icgt import __version__
 from icgt.errors import IcgtError
+from icgt.version import __version__
 
 Compression = Literal["zstd", "lz4", "none"]
 

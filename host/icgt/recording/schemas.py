@@ -41,6 +41,7 @@ from typing import Any
 import msgspec
 
 from icgt.errors import IcgtError
+from icgt.field_doc import Doc
 
 JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
 
@@ -51,23 +52,6 @@ _Keep = Callable[[Any], bool]  # False: leave the key out of the JSON object
 
 class SchemaError(IcgtError):
     """A record type cannot be described as a JSON Schema (an undocumented field, an unsupported type)."""
-
-
-@dataclass(frozen=True)
-class Doc:
-    """What one field means: put it in `Annotated[type, Doc(...)]` or `field(metadata={"doc": Doc(...)})`.
-
-    `unit` is appended to the description in brackets (e.g. "distance to the surface [m]"), so it
-    shows wherever Foxglove shows the schema; `minimum` and `maximum` become JSON Schema bounds.
-    """
-
-    description: str
-    unit: str | None = None
-    minimum: float | None = None
-    maximum: float | None = None
-
-    def text(self) -> str:
-        return f"{self.description} [{self.unit}]" if self.unit else self.description
 
 
 def schema_name(cls: type) -> str:

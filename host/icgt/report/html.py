@@ -87,7 +87,7 @@ def _left_out_note(data: FlightData) -> str:
 
 def render(data: FlightData) -> str:
     """The whole page."""
-    from icgt import __version__
+    from icgt.version import __version__
 
     summary = "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in summarize(data))
     footprints = plots.footprint_figure(data)

@@ -23,9 +23,9 @@ from pycocotools import mask as coco_mask
 
 from icgt.geodesy import FloatArray
 from icgt.sim.camera_card import file_name
+from icgt.sim.face import FaceFrame
 from icgt.sim.render import camera_to_enu, render_size, scenario_camera
 from icgt.sim.scenario import Scenario, SimError
-from icgt.sim.surface import FaceFrame
 from icgt.sim.truth import ExposureTruth
 
 CLASSES = ("crack", "spalling")

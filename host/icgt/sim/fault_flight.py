@@ -22,8 +22,8 @@ from pathlib import Path
 from typing import Any
 
 from icgt.control import request
-from icgt.demo import free_udp_port, recorder_config_text
 from icgt.sim.evaluate import read_truth
+from icgt.sim.recorder_setup import free_udp_port, recorder_config_text
 from icgt.sim.scenario import Scenario
 from icgt.sim.session import SimSession
 

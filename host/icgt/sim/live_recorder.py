@@ -1,7 +1,7 @@
 """A simulated flight with `icgt record` running on it, for clients that drive the camera themselves.
 
 `LiveRecorder` starts a scenario's simulator (`SimSession`) and `icgt record` as its own process with the
-configuration a crew would write (`icgt.demo.recorder_config_text`, plus the ground-station ids and
+configuration a crew would write (`icgt.sim.recorder_setup.recorder_config_text`, plus the ground-station ids and
 signing key file given), and leaves the ground station to the caller: ``urls.gcs`` is the simulated
 autopilot's ground-station port (pymavlink ``udpout:`` form; MAVSDK's is `mavsdk_url`). Unlike
 `icgt.demo.fly`, nothing is commanded: tests and benchmarks bring their own client (MAVSDK, pymavlink).
@@ -12,24 +12,16 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 from pathlib import Path
 
-from icgt.demo import recorder_config_text
 from icgt.errors import IcgtError
+from icgt.sim.recorder_setup import free_udp_port, recorder_config_text
 from icgt.sim.scenario import Scenario
 from icgt.sim.session import SessionUrls, SimSession
 
 __all__ = ["LiveRecorder"]
-
-
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
 
 
 class LiveRecorder:
@@ -69,7 +61,7 @@ class LiveRecorder:
             )
         )
         self.session = SimSession(
-            self.scenario, self.out_dir / "sim", mavlink_port=_free_udp_port(), gcs_port=_free_udp_port()
+            self.scenario, self.out_dir / "sim", mavlink_port=free_udp_port(), gcs_port=free_udp_port()
         )
         urls = self.session.start()
         self.urls = urls

@@ -15,8 +15,9 @@ from PIL import Image
 
 from icgt.geodesy import FloatArray, q_to_matrix
 from icgt.geometry import CameraModel
+from icgt.sim.face import FaceFrame
 from icgt.sim.scenario import Scenario
-from icgt.sim.surface import FaceFrame, Surface, shade
+from icgt.sim.surface import Surface, shade
 from icgt.sim.truth import ExposureTruth
 
 _NED_TO_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])

@@ -27,20 +27,20 @@ from __future__ import annotations
 
 import math
 import tomllib
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, NoReturn, TypeAlias
+from typing import TYPE_CHECKING, Any, Literal, TypeAlias
 
-from icgt.errors import IcgtError
 from icgt.sim.profiles import IDEAL_RATES_HZ, PROFILE_NAMES, PROFILES
 from icgt.sim.resources import scenario_dir
+from icgt.sim.scenario_reader import ScenarioError as ScenarioError
+from icgt.sim.scenario_reader import SimError as SimError
+from icgt.sim.scenario_reader import TableReader, Vec3, Window
 
 if TYPE_CHECKING:
     from icgt.sim.surface import Surface
 
-Vec3: TypeAlias = tuple[float, float, float]
-Window: TypeAlias = tuple[float, float]
 
 SCENARIO_DIR = scenario_dir()
 """Where the scenario files are: inside the installed wheel, else the repository's hil_sim/scenarios."""
@@ -62,14 +62,6 @@ STREAM_NAMES = (
 """Telemetry streams of the simulated autopilot, by lower-case MAVLink message name."""
 DEFAULT_RATES_HZ: Mapping[str, float] = IDEAL_RATES_HZ
 """Stream rates of the "ideal" profile (the default); see icgt.sim.profiles for the others."""
-
-
-class SimError(IcgtError):
-    """A problem in the simulator (scenario, truth files, simulated devices)."""
-
-
-class ScenarioError(SimError):
-    """A scenario file that cannot be used; the message names the file and the key."""
 
 
 # --- sections -------------------------------------------------------------------------------
@@ -438,161 +430,14 @@ class Scenario:
 
 # --- loading --------------------------------------------------------------------------------
 
-_MISSING: Any = object()
-
-
-class _Reader:
-    """Typed access to one TOML table, remembering which keys were read so typos are reported."""
-
-    def __init__(self, data: Mapping[str, Any], source: str, prefix: str = "") -> None:
-        self.data = data
-        self.source = source
-        self.prefix = prefix
-        self.used: set[str] = set()
-
-    def fail(self, key: str, message: str) -> NoReturn:
-        raise ScenarioError(f"{self.source}: {self.prefix}{key}: {message}")
-
-    def _get(self, key: str, default: Any) -> Any:
-        self.used.add(key)
-        if key in self.data:
-            return self.data[key]
-        if default is _MISSING:
-            self.fail(key, "missing (required)")
-        return default
-
-    def has(self, key: str) -> bool:
-        return key in self.data
-
-    def number(
-        self,
-        key: str,
-        default: Any = _MISSING,
-        *,
-        min_value: float | None = None,
-        max_value: float | None = None,
-        positive: bool = False,
-    ) -> float:
-        value = self._get(key, default)
-        return self._check_number(key, value, min_value, max_value, positive)
-
-    def _check_number(
-        self, key: str, value: Any, min_value: float | None, max_value: float | None, positive: bool
-    ) -> float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            self.fail(key, f"expected a number, got {value!r}")
-        v = float(value)
-        if not math.isfinite(v):
-            self.fail(key, f"expected a finite number, got {value!r}")
-        if positive and v <= 0.0:
-            self.fail(key, f"must be > 0, got {value!r}")
-        if min_value is not None and v < min_value:
-            self.fail(key, f"must be >= {min_value:g}, got {value!r}")
-        if max_value is not None and v > max_value:
-            self.fail(key, f"must be <= {max_value:g}, got {value!r}")
-        return v
-
-    def optional_number(self, key: str, **kw: Any) -> float | None:
-        if key not in self.data:
-            self.used.add(key)
-            return None
-        return self.number(key, **kw)
-
-    def integer(
-        self, key: str, default: Any = _MISSING, *, min_value: int | None = None, max_value: int | None = None
-    ) -> int:
-        value = self._get(key, default)
-        if isinstance(value, bool) or not isinstance(value, int):
-            self.fail(key, f"expected an integer, got {value!r}")
-        if min_value is not None and value < min_value:
-            self.fail(key, f"must be >= {min_value}, got {value!r}")
-        if max_value is not None and value > max_value:
-            self.fail(key, f"must be <= {max_value}, got {value!r}")
-        return value
-
-    def string(self, key: str, default: Any = _MISSING, *, choices: Sequence[str] | None = None) -> str:
-        value = self._get(key, default)
-        if not isinstance(value, str):
-            self.fail(key, f"expected a string, got {value!r}")
-        if choices is not None and value not in choices:
-            self.fail(key, f"must be one of {', '.join(repr(c) for c in choices)}, got {value!r}")
-        return value
-
-    def boolean(self, key: str, default: Any = _MISSING) -> bool:
-        value = self._get(key, default)
-        if not isinstance(value, bool):
-            self.fail(key, f"expected true or false, got {value!r}")
-        return value
-
-    def vec3(self, key: str, default: Any = _MISSING) -> Vec3:
-        value = self._get(key, default)
-        if not isinstance(value, list | tuple) or len(value) != 3:
-            self.fail(key, f"expected [x, y, z], got {value!r}")
-        x, y, z = (self._check_number(key, v, None, None, False) for v in value)
-        return (x, y, z)
-
-    def pairs(self, key: str, *, second_after_first: bool) -> tuple[Window, ...]:
-        value = self._get(key, [])
-        if not isinstance(value, list):
-            self.fail(key, f"expected a list of [a, b] pairs, got {value!r}")
-        out: list[Window] = []
-        for i, pair in enumerate(value):
-            if not isinstance(pair, list) or len(pair) != 2:
-                self.fail(f"{key}[{i}]", f"expected [a, b], got {pair!r}")
-            a = self._check_number(f"{key}[{i}]", pair[0], 0.0, None, False)
-            b = self._check_number(f"{key}[{i}]", pair[1], 0.0, None, False)
-            if second_after_first and b <= a:
-                self.fail(f"{key}[{i}]", f"end {b:g} must be after start {a:g}")
-            if not second_after_first and b <= 0.0:
-                self.fail(f"{key}[{i}]", f"duration must be > 0, got {b:g}")
-            out.append((a, b))
-        return tuple(out)
-
-    def numbers(self, key: str, *, min_value: float | None = None) -> tuple[float, ...]:
-        value = self._get(key, [])
-        if not isinstance(value, list):
-            self.fail(key, f"expected a list of numbers, got {value!r}")
-        return tuple(self._check_number(f"{key}[{i}]", v, min_value, None, False) for i, v in enumerate(value))
-
-    def integers(self, key: str, *, min_value: int | None = None) -> tuple[int, ...]:
-        value = self._get(key, [])
-        if not isinstance(value, list):
-            self.fail(key, f"expected a list of integers, got {value!r}")
-        out: list[int] = []
-        for i, v in enumerate(value):
-            if isinstance(v, bool) or not isinstance(v, int):
-                self.fail(f"{key}[{i}]", f"expected an integer, got {v!r}")
-            if min_value is not None and v < min_value:
-                self.fail(f"{key}[{i}]", f"must be >= {min_value}, got {v!r}")
-            out.append(v)
-        return tuple(out)
-
-    def strings(self, key: str) -> tuple[str, ...]:
-        value = self._get(key, [])
-        if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
-            self.fail(key, f"expected a list of strings, got {value!r}")
-        return tuple(value)
-
-    def table(self, key: str, *, required: bool = False) -> _Reader:
-        value = self._get(key, _MISSING if required else {})
-        if not isinstance(value, dict):
-            self.fail(key, f"expected a table, got {value!r}")
-        return _Reader(value, self.source, f"{self.prefix}{key}.")
-
-    def finish(self) -> None:
-        unknown = sorted(set(self.data) - self.used)
-        if unknown:
-            self.fail(unknown[0], "unknown key (a typo?)")
-
-
-def _unit(r: _Reader, key: str, v: Vec3) -> Vec3:
+def _unit(r: TableReader, key: str, v: Vec3) -> Vec3:
     n = math.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
     if n < 1e-9:
         r.fail(key, "must not be the zero vector")
     return (v[0] / n, v[1] / n, v[2] / n)
 
 
-def _trajectory_common(r: _Reader) -> dict[str, Any]:
+def _trajectory_common(r: TableReader) -> dict[str, Any]:
     return {
         "start_hold_s": r.number("start_hold_s", 3.0, min_value=0.0),
         "sway_m": r.number("sway_m", 0.0, min_value=0.0, max_value=5.0),
@@ -601,7 +446,7 @@ def _trajectory_common(r: _Reader) -> dict[str, Any]:
     }
 
 
-def _read_trajectory(r: _Reader, structure: Structure) -> TrajectorySpec:
+def _read_trajectory(r: TableReader, structure: Structure) -> TrajectorySpec:
     kind = r.string("kind", choices=TRAJECTORY_KINDS)
     common = _trajectory_common(r)
     spec: TrajectorySpec
@@ -666,7 +511,7 @@ def _read_trajectory(r: _Reader, structure: Structure) -> TrajectorySpec:
     return spec
 
 
-def _read_camera(r: _Reader) -> Camera:
+def _read_camera(r: TableReader) -> Camera:
     c = r.table("capture")
     capture = Capture(
         mode=c.string("mode", "focus_burst", choices=("focus_burst", "interval")),  # type: ignore[arg-type]
@@ -712,7 +557,7 @@ def _read_camera(r: _Reader) -> Camera:
     return cam
 
 
-def _read_gps(r: _Reader) -> Gps:
+def _read_gps(r: TableReader) -> Gps:
     gps = Gps(
         fix_type=r.integer("fix_type", 3, min_value=2, max_value=6),
         fix_acquired_after_s=r.number("fix_acquired_after_s", 0.0, min_value=0.0),
@@ -731,7 +576,7 @@ def _read_gps(r: _Reader) -> Gps:
     return gps
 
 
-def _read_autopilot(r: _Reader) -> Autopilot:
+def _read_autopilot(r: TableReader) -> Autopilot:
     profile = r.string("profile", "ideal", choices=PROFILE_NAMES)
     base = PROFILES[profile]
     rt = r.table("rates_hz")
@@ -780,7 +625,7 @@ def _read_autopilot(r: _Reader) -> Autopilot:
     return ap
 
 
-def _read_clocks(r: _Reader) -> Clocks:
+def _read_clocks(r: TableReader) -> Clocks:
     d = r.table("device")
     device = DeviceClock(
         offset_us=d.integer("offset_us", 0, min_value=0),
@@ -806,7 +651,7 @@ def _read_clocks(r: _Reader) -> Clocks:
 
 def parse_scenario(data: Mapping[str, Any], source: str = "<memory>") -> Scenario:
     """Build and validate a Scenario from parsed TOML data; errors name `source` and the key."""
-    r = _Reader(data, source)
+    r = TableReader(data, source)
     name = r.string("name")
     description = r.string("description", "")
     duration_s = r.number("duration_s", positive=True, max_value=24 * 3600.0)

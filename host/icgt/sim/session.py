@@ -310,7 +310,7 @@ class SimSession:
             shutil.rmtree(self.files.card)
         write_card(self.files.card, truth, self.clocks, self.scenario.camera, scenario=self.scenario)
         if self.scenario.surface is not None:
-            from icgt.sim.surface import calibration_toml, write_defects_truth
+            from icgt.sim.face import calibration_toml, write_defects_truth
 
             write_defects_truth(self.out_dir / "truth_defects.json", self.scenario, self.scenario.surface)
             (self.out_dir / "camera_calibration.toml").write_text(calibration_toml(self.scenario), encoding="utf-8")

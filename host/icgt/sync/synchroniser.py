@@ -41,7 +41,7 @@ from icgt.geotag.clock_views import AutopilotClockView, UtcView, add_pps_edge
 from icgt.geotag.geotagger import GeotagConfig, Geotagger
 from icgt.geotag.record import FrameRecord
 from icgt.mavlink.autopilot_rules import BOOT_CLOCK_TYPES, AutopilotPresence, Freshness
-from icgt.mavlink.link import MavlinkMessage
+from icgt.mavlink.link_types import MavlinkMessage
 from icgt.mavlink.telemetry import TelemetryStore
 from icgt.protocol.messages import DeviceState, Exposure, Hello, Imu, Message, Pps, Range, Status
 from icgt.sync.timesync import TimesyncPairing, TimesyncReply

@@ -8,7 +8,7 @@
 Writes every frame (the placed ones replaced, the others as recorded) as the export's frames.csv
 columns (.csv) or as a JSON array of frame records (.json, non-finite numbers as null), reads the
 file back, and prints how many frames were placed, per position source, and every frame that was
-not, with the reason. Also the `icgt export --formats ppk` step (`export_ppk`).
+not, with the reason.
 """
 
 from __future__ import annotations
@@ -22,12 +22,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from icgt.errors import IcgtError
 from icgt.geotag.record import FrameRecord
 from icgt.trajectories.regeotag import RegeotagConfig, RegeotagResult, regeotag_detailed
 from icgt.trajectories.source import TrajectoryError
 
-__all__ = ["add_regeotag_arguments", "cmd_regeotag", "export_ppk", "run_regeotag", "write_frames"]
+__all__ = ["add_regeotag_arguments", "cmd_regeotag", "run_regeotag", "write_frames"]
 
 
 def _triple(text: str, what: str) -> tuple[float, float, float]:
@@ -158,22 +157,3 @@ def add_regeotag_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--body-axes", choices=("flu", "frd"), default="flu", help="TUM: body axes of the poses")
     parser.add_argument("--no-attitude", action="store_true", help="TUM: use the positions only")
     parser.add_argument("--max-gap-s", type=float, help="longest interpolated gap [s] (TUM 0.5, .pos 1.5)")
-
-
-def export_ppk(
-    recording: Any, frames: Sequence[FrameRecord], out_dir: Path, problems: Any, *, geoid_separation_m: float | None
-) -> dict[str, int]:
-    """The `icgt export --formats ppk` step: events_gpst.csv and Timestamp.MRK; skipped frames become problems."""
-    from icgt.ingest.recompute import recording_config
-    from icgt.trajectories.ppk_events import write_ppk_events
-
-    try:
-        lever = recording_config(recording).lever_arm_body_m
-    except IcgtError:
-        lever = (0.0, 0.0, 0.0)
-        problems.add("", None, "warning", "no_lever_arm", "no mounting in the log: MRK offsets written as 0")
-    result = write_ppk_events(out_dir, frames, lever_arm_body_m=lever, geoid_separation_m=geoid_separation_m)
-    for seq, why in result.skipped:
-        affects = "events_gpst.csv,Timestamp.MRK" if why.startswith("no UTC") else "Timestamp.MRK"
-        problems.add("", seq, "warning", "ppk_event_skipped", why, affects)
-    return {"ppk events": result.events, "mrk lines": result.mrk_lines}

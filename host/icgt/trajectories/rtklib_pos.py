@@ -18,7 +18,7 @@ sdne sdeu sdun [m] (signed square roots of the covariances), age [s] and ratio (
 validation ratio), then velocities if they were output. Fields are separated by spaces (or by
 the separator ``out-fieldsep`` chose, e.g. commas). Only the first ten fields are needed here.
 
-Time: GPST is converted to UTC by the GPS - UTC leap seconds (`icgt.trajectories.gpstime`, 18 s
+Time: GPST is converted to UTC by the GPS - UTC leap seconds (`icgt.clocks.gpstime`, 18 s
 since 2017); the frames are then looked up by ``mid_utc_us``. An optional ``time_offset_s`` is
 added after the conversion.
 
@@ -44,8 +44,8 @@ from typing import Literal
 
 import numpy as np
 
+from icgt.clocks.gpstime import GpsTimeError, gps_seconds_to_utc_s, week_tow_to_utc_s
 from icgt.geodesy import LocalFrame
-from icgt.trajectories.gpstime import GpsTimeError, gps_seconds_to_utc_s, week_tow_to_utc_s
 from icgt.trajectories.source import SampledTrajectory, TrajectoryError
 
 __all__ = ["Q_LABELS", "PosOptions", "PosSolution", "read_pos"]

@@ -6,7 +6,7 @@ needs the instant of every photo on GPS time. Two files are written (`icgt expor
 ``events_gpst.csv`` (every frame with a UTC time): ``mrk_index`` (its line in the MRK, empty if it
 has none), ``frame_seq``, ``image_index``, ``camera_id``, ``gps_week``, ``gps_tow_s`` (6 decimals,
 mid-exposure), ``utc_iso``, ``mid_utc_uncertainty_us``, ``position_source``, ``flags`` (``;``-joined).
-GPS time = UTC + the leap seconds (18 s since 2017, `icgt.trajectories.gpstime`).
+GPS time = UTC + the leap seconds (18 s since 2017, `icgt.clocks.gpstime`).
 
 ``Timestamp.MRK``, the event file DJI's RTK drones write beside their photos and that Emlid Studio
 (its DJI drone workflow), Qinertia, Skycatch and others read. Its rules, as DJI's user manuals
@@ -41,13 +41,15 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from icgt.clocks.gpstime import utc_us_to_gps_week_tow_us
 from icgt.errors import IcgtError
 from icgt.geodesy import q_rotate
 from icgt.geotag.record import FrameFlag, FrameRecord
-from icgt.trajectories.gpstime import utc_us_to_gps_week_tow_us
+from icgt.ingest.recompute import recording_config
 
 __all__ = [
     "EVENTS_COLUMNS",
@@ -56,6 +58,7 @@ __all__ = [
     "MrkLine",
     "PpkEventsResult",
     "dji_rtk_flag",
+    "export_ppk",
     "read_mrk",
     "write_ppk_events",
 ]
@@ -257,3 +260,19 @@ def read_mrk(path: Path) -> list[MrkLine]:
         except (ValueError, IndexError) as exc:
             raise PpkEventsError(f"{path}:{number}: not an MRK line ({exc}): {raw[:80]!r}") from None
     return out
+
+
+def export_ppk(
+    recording: Any, frames: Sequence[FrameRecord], out_dir: Path, problems: Any, *, geoid_separation_m: float | None
+) -> dict[str, int]:
+    """The `icgt export --formats ppk` step: events_gpst.csv and Timestamp.MRK; skipped frames become problems."""
+    try:
+        lever = recording_config(recording).lever_arm_body_m
+    except IcgtError:
+        lever = (0.0, 0.0, 0.0)
+        problems.add("", None, "warning", "no_lever_arm", "no mounting in the log: MRK offsets written as 0")
+    result = write_ppk_events(out_dir, frames, lever_arm_body_m=lever, geoid_separation_m=geoid_separation_m)
+    for seq, why in result.skipped:
+        affects = "events_gpst.csv,Timestamp.MRK" if why.startswith("no UTC") else "Timestamp.MRK"
+        problems.add("", seq, "warning", "ppk_event_skipped", why, affects)
+    return {"ppk events": result.events, "mrk lines": result.mrk_lines}

@@ -3,6 +3,8 @@
 #include "crc32.hpp"
 #include "wire.hpp"
 
+#include <cstdint>
+
 namespace icgt::proto {
 
 std::size_t encode_frame(const FrameHeader& header, const uint8_t* body, std::size_t body_len, uint8_t* out,
@@ -86,7 +88,9 @@ void StreamDecoder::track_sequence() {
     const uint32_t d = header_.seq - expected_seq_;  // modulo 2^32 by unsigned arithmetic
     if (d < 0x80000000u) {
       ++stats_.seq_gaps;
-      stats_.seq_missed += d;
+      // Saturate, never wrap: a counter gone round to 0 would report a huge loss as none (SPEC.md §3).
+      const uint32_t room = UINT32_MAX - stats_.seq_missed;
+      stats_.seq_missed = d > room ? UINT32_MAX : stats_.seq_missed + d;
     } else {
       ++stats_.seq_resets;
     }

@@ -1,6 +1,7 @@
 // Framing: CRC-32, COBS, frame encoder and stream decoder (SPEC.md §1-§7).
 #include <gtest/gtest.h>
 
+#include <cstdint>
 #include <cstring>
 #include <random>
 #include <vector>
@@ -133,6 +134,20 @@ TEST(ProtocolDecoder, CountsMissedSequenceNumbersAndIgnoresRetransmits) {
   EXPECT_EQ(dec.stats().seq_gaps, 1u);
   EXPECT_EQ(dec.stats().seq_missed, 3u);
   EXPECT_EQ(dec.stats().seq_resets, 1u);
+}
+
+TEST(ProtocolDecoder, MissedCountSaturatesInsteadOfWrapping) {
+  StreamDecoder dec;
+  std::vector<uint8_t> s;
+  // Three gaps of 2^31 - 2 frames each: 3 * (2^31 - 2) > 2^32 - 1, which a wrapping u32 would show as small.
+  for (uint32_t seq : {0u, 0x7FFFFFFFu, 0xFFFFFFFEu, 0x7FFFFFFDu}) {
+    auto w = wire_of(Ping{}, seq);
+    s.insert(s.end(), w.begin(), w.end());
+  }
+  const auto c = feed(dec, s);
+  EXPECT_EQ(c.seqs.size(), 4u);
+  EXPECT_EQ(dec.stats().seq_gaps, 3u);
+  EXPECT_EQ(dec.stats().seq_missed, UINT32_MAX);
 }
 
 TEST(ProtocolDecoder, SequenceWrapsWithoutCountingAGap) {

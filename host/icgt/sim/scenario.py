@@ -430,6 +430,7 @@ class Scenario:
 
 # --- loading --------------------------------------------------------------------------------
 
+
 def _unit(r: TableReader, key: str, v: Vec3) -> Vec3:
     n = math.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
     if n < 1e-9:

@@ -347,12 +347,14 @@ def test_a_buffer_with_a_retention_keeps_samples_by_time_and_counts_what_expires
 
 
 def test_a_store_keeps_a_50_hz_stream_for_its_retention() -> None:
-    from icgt.mavlink.telemetry import SAMPLE_BYTES
+    from icgt.mavlink.telemetry import SAMPLE_BYTES, FusedPositionSample
 
     store = TelemetryStore(retention_s=700.0)
     assert store.fused.capacity >= 700 * 100 and store.fused.retain_us == 700_000_000
     for k in range(720 * 50):  # 12 min at 50 Hz
-        store.fused.push(S(k * 20_000, float(k)))  # type: ignore[arg-type]
+        store.fused.push(
+            FusedPositionSample(k * 20_000, k, True, 47.0, 8.0, 500.0, 30.0, 0, 0, 0, float(k), 0.0, 0.0, None)
+        )
     oldest = store.fused.oldest()
     assert oldest is not None and oldest.boot_us == 719_980_000 - 700_000_000  # the newest minus 700 s
     assert store.memory_bytes() == store.fused.held * SAMPLE_BYTES

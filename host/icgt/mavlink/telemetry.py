@@ -22,8 +22,11 @@ import bisect
 import dataclasses
 import math
 import threading
+from array import array
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
+
+from icgt.mavlink.sample_codec import PACKED_SAMPLE_BYTES, SampleCodec
 
 if TYPE_CHECKING:
     from icgt.mavlink.link import MavlinkLink, MavlinkMessage, Subscription
@@ -66,9 +69,8 @@ TELEMETRY_TYPES = frozenset(
     }
 )
 MAX_STREAM_RATE_HZ = 100.0  # per stream: the most samples a second `TelemetryStore.retain` keeps room for
-# Memory per buffered sample [bytes]: the sample object with its field values plus its key and list slots,
-# measured with tracemalloc on CPython 3.11 (GLOBAL_POSITION_INT 516 B, GPS_RAW_INT 640 B: the larger).
-SAMPLE_BYTES = 640
+# Memory per buffered sample [bytes]: samples are held packed (`icgt.mavlink.sample_codec`, measured there).
+SAMPLE_BYTES = PACKED_SAMPLE_BYTES
 LOCAL_RESET_SPEED_MARGIN_MPS = 5.0  # a local position moving faster than its own velocity by this ...
 LOCAL_RESET_MIN_JUMP_M = 2.0  # ... and by at least this far between two samples is an origin reset
 
@@ -334,7 +336,12 @@ class TelemetryBuffer(Generic[S]):
     """
 
     def __init__(
-        self, capacity: int = 4096, *, reboot_backstep_us: int = 2_000_000, retain_us: int | None = None
+        self,
+        capacity: int = 4096,
+        *,
+        reboot_backstep_us: int = 2_000_000,
+        retain_us: int | None = None,
+        codec: SampleCodec[S] | None = None,
     ) -> None:
         if capacity < 2:
             raise ValueError("capacity must be at least 2")
@@ -344,8 +351,9 @@ class TelemetryBuffer(Generic[S]):
         self.retain_us = retain_us
         self.expired = 0
         self._backstep = reboot_backstep_us
-        self._keys: list[int] = []
-        self._items: list[S] = []
+        self._keys = array("q")  # boot_us of each entry, sorted: 8 bytes each (a list of ints takes 36)
+        self._items: list[Any] = []  # the samples, or their bytes with a codec
+        self._codec = codec
         self._head = 0  # entries before it are dropped (deleted in batches)
         self._lock = threading.Lock()
         self.resets = 0
@@ -362,8 +370,13 @@ class TelemetryBuffer(Generic[S]):
         with self._lock:
             return len(self._keys)
 
+    def _out(self, item: Any) -> S:
+        codec = self._codec
+        return item if codec is None else codec.decode(item)  # type: ignore[no-any-return]
+
     def push(self, sample: S) -> None:
         key = sample.boot_us
+        item: Any = sample if self._codec is None else self._codec.encode(sample)
         with self._lock:
             keys, items = self._keys, self._items
             if len(keys) > self._head:
@@ -373,23 +386,23 @@ class TelemetryBuffer(Generic[S]):
                         self._clear_locked()
                         self.resets += 1
                     else:
-                        self._insert_late_locked(key, sample)
+                        self._insert_late_locked(key, item)
                         return
                 elif key == last:
-                    items[-1] = sample
+                    items[-1] = item
                     self.replaced += 1
                     return
             keys.append(key)
-            items.append(sample)
+            items.append(item)
             if len(keys) - self._head > self.capacity or (
                 self.retain_us is not None and keys[self._head] < key - self.retain_us
             ):  # the only ways the head moves (see _trim_locked)
                 self._trim_locked()
 
-    def _insert_late_locked(self, key: int, sample: S) -> None:
+    def _insert_late_locked(self, key: int, item: Any) -> None:
         i = bisect.bisect_left(self._keys, key, lo=self._head)
         if i < len(self._keys) and self._keys[i] == key:
-            self._items[i] = sample
+            self._items[i] = item
             self.replaced += 1
             return
         too_old = self.retain_us is not None and key < self._keys[-1] - self.retain_us
@@ -397,7 +410,7 @@ class TelemetryBuffer(Generic[S]):
             self.expired += 1  # older than everything kept in a full buffer, or than the retention
             return
         self._keys.insert(i, key)
-        self._items.insert(i, sample)
+        self._items.insert(i, item)
         self.late += 1
         self._trim_locked()
 
@@ -415,7 +428,7 @@ class TelemetryBuffer(Generic[S]):
             self._head = 0
 
     def _clear_locked(self) -> None:
-        self._keys.clear()
+        del self._keys[:]
         self._items.clear()
         self._head = 0
 
@@ -443,29 +456,37 @@ class TelemetryBuffer(Generic[S]):
             i = bisect.bisect_right(keys, t_us, lo=self._head)
             before = self._items[i - 1] if i > self._head else None
             if before is not None and keys[i - 1] == t_us:
-                return before, before
+                same = self._out(before)
+                return same, same
             after = self._items[i] if i < len(keys) else None
-            return before, after
+        return (
+            None if before is None else self._out(before),
+            None if after is None else self._out(after),
+        )
 
     def latest(self) -> S | None:
         with self._lock:
-            return self._items[-1] if len(self._items) > self._head else None
+            item = self._items[-1] if len(self._items) > self._head else None
+        return None if item is None else self._out(item)
 
     def oldest(self) -> S | None:
         with self._lock:
-            return self._items[self._head] if len(self._items) > self._head else None
+            item = self._items[self._head] if len(self._items) > self._head else None
+        return None if item is None else self._out(item)
 
     def samples(self) -> list[S]:
         """A copy of the samples held, oldest first."""
         with self._lock:
-            return self._items[self._head :]
+            items = self._items[self._head :]
+        return items if self._codec is None else [self._out(it) for it in items]
 
     def between(self, t0_us: int, t1_us: int) -> list[S]:
         """Samples with t0_us <= boot_us <= t1_us, oldest first."""
         with self._lock:
             lo = bisect.bisect_left(self._keys, t0_us, lo=self._head)
             hi = bisect.bisect_right(self._keys, t1_us, lo=self._head)
-            return self._items[lo:hi]
+            items = self._items[lo:hi]
+        return items if self._codec is None else [self._out(it) for it in items]
 
 
 class TelemetryStore:
@@ -481,10 +502,10 @@ class TelemetryStore:
     synchroniser sets it to the device's history horizon, `icgt.device.history`), and at most
     ``retention_s * MAX_STREAM_RATE_HZ`` samples per stream. Memory: about `SAMPLE_BYTES` per sample
     held, so at most ``6 * MAX_STREAM_RATE_HZ * retention_s * SAMPLE_BYTES * 1.25`` (the 1.25: trimmed
-    entries are deleted in batches); `memory_bytes` estimates what is held now. At 5 fps (retention 742.7 s)
-    that bound is 340 MiB (all six streams at 100 Hz); measured in the simulated flights (about 180 samples/s
-    in all, the rates the recorder asks for): 37 MiB after a 5.5 min flight, 86 MiB after a 12.5 min one, the
-    retention reached (benchmarks/resend_faults.py --outage 300 720). With ``retention_s``
+    entries are deleted in batches); `memory_bytes` estimates what is held now. The samples are held packed
+    (`icgt.mavlink.sample_codec`, a third of the objects' memory). At 5 fps (retention 742.7 s) that bound is
+    119 MiB (all six streams at 100 Hz); the simulated flights send about 180 samples/s in all (the rates the
+    recorder asks for): 29-36 MiB once the retention is reached (benchmarks/soak.py). With ``retention_s``
     None, ``capacity`` samples per stream and no time bound (the buffers' own default).
     """
 
@@ -500,12 +521,20 @@ class TelemetryStore:
     ) -> None:
         self.autopilot_system = autopilot_system
         self.autopilot_component = autopilot_component
-        self.gps: TelemetryBuffer[GpsSample] = TelemetryBuffer(capacity)
-        self.fused: TelemetryBuffer[FusedPositionSample] = TelemetryBuffer(capacity)
-        self.attitude: TelemetryBuffer[AttitudeSample] = TelemetryBuffer(capacity)
-        self.attitude_quaternion: TelemetryBuffer[AttitudeSample] = TelemetryBuffer(capacity)
-        self.local_position: TelemetryBuffer[LocalPositionSample] = TelemetryBuffer(capacity)
-        self.system_time: TelemetryBuffer[SystemTimeSample] = TelemetryBuffer(capacity)
+        # Held packed (`icgt.mavlink.sample_codec`): the retention spans the device's history horizon.
+        self.gps: TelemetryBuffer[GpsSample] = TelemetryBuffer(capacity, codec=SampleCodec(GpsSample))
+        self.fused: TelemetryBuffer[FusedPositionSample] = TelemetryBuffer(
+            capacity, codec=SampleCodec(FusedPositionSample)
+        )
+        attitude_codec = SampleCodec(AttitudeSample)
+        self.attitude: TelemetryBuffer[AttitudeSample] = TelemetryBuffer(capacity, codec=attitude_codec)
+        self.attitude_quaternion: TelemetryBuffer[AttitudeSample] = TelemetryBuffer(capacity, codec=attitude_codec)
+        self.local_position: TelemetryBuffer[LocalPositionSample] = TelemetryBuffer(
+            capacity, codec=SampleCodec(LocalPositionSample)
+        )
+        self.system_time: TelemetryBuffer[SystemTimeSample] = TelemetryBuffer(
+            capacity, codec=SampleCodec(SystemTimeSample)
+        )
         self.retention_s: float | None = None
         if retention_s is not None:
             self.retain(retention_s)

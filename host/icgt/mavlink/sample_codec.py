@@ -54,10 +54,10 @@ def _slot(name: str, hint: Any) -> tuple[_Slot, str]:
     if hint is str:
         return _Slot("str", optional, 1), "B"
     if origin is tuple:
-        args = typing.get_args(hint)
-        if not args or Ellipsis in args or any(a not in _SCALAR_CODES for a in args):
+        members = typing.get_args(hint)
+        if not members or Ellipsis in members or any(a not in _SCALAR_CODES for a in members):
             raise TypeError(f"field {name}: only fixed-length tuples of int/float/bool pack, not {hint}")
-        return _Slot("tuple", optional, len(args)), "".join(_SCALAR_CODES[a] for a in args)
+        return _Slot("tuple", optional, len(members)), "".join(_SCALAR_CODES[a] for a in members)
     raise TypeError(f"field {name}: {hint} does not pack")
 
 

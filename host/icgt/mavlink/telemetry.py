@@ -372,7 +372,7 @@ class TelemetryBuffer(Generic[S]):
 
     def _out(self, item: Any) -> S:
         codec = self._codec
-        return item if codec is None else codec.decode(item)  # type: ignore[no-any-return]
+        return item if codec is None else codec.decode(item)
 
     def push(self, sample: S) -> None:
         key = sample.boot_us

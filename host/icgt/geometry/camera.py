@@ -8,7 +8,6 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -99,12 +98,6 @@ class CameraModel:
         return cls.from_sensor(
             cfg.focal_length_mm, cfg.sensor_width_mm, cfg.image_width_px, cfg.image_height_px, source="GeotagConfig"
         )
-
-    @classmethod
-    def load(cls, path: str | Path) -> CameraModel:
-        from icgt.geometry.calibration import load_calibration  # here: calibration.py imports this module
-
-        return load_calibration(path)
 
     # --- properties
     @property

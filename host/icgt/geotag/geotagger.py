@@ -10,7 +10,6 @@ sample and flagged, so nothing is ever dropped.
 from __future__ import annotations
 
 import math
-import threading
 from bisect import bisect_left, bisect_right
 from collections import deque
 from collections.abc import Callable
@@ -154,7 +153,7 @@ class _Pending:
 
 
 class Geotagger:
-    """Pairs device exposures with autopilot telemetry. Thread-safe: feed from any thread, poll from one."""
+    """Pairs device exposures with autopilot telemetry. Single-threaded: the synchroniser feeds and polls it."""
 
     def __init__(
         self,
@@ -190,7 +189,6 @@ class Geotagger:
         self._imu: TelemetryBuffer[DeviceSample] = TelemetryBuffer(IMU_SAMPLES_KEPT, reboot_backstep_us=_NEVER_US)
         self._range: TelemetryBuffer[DeviceSample] = TelemetryBuffer(RANGE_SAMPLES_KEPT, reboot_backstep_us=_NEVER_US)
         self._pending: deque[_Pending] = deque()
-        self._lock = threading.Lock()
         self._seq = 0
         self._frame: LocalFrame | None = LocalFrame(*config.origin) if config.origin else None
         self.origin: tuple[float, float, float] | None = config.origin
@@ -222,9 +220,8 @@ class Geotagger:
             flags.append(FrameFlag.FEEDBACK_MISSING.value)
         if exposure.flags & ExposureFlags.UNSOLICITED:
             flags.append(FrameFlag.UNSOLICITED.value)
-        with self._lock:
-            self._seq += 1
-            self._pending.append(_Pending(self._seq, exposure, rx_host_ns, mid, start, flags))
+        self._seq += 1
+        self._pending.append(_Pending(self._seq, exposure, rx_host_ns, mid, start, flags))
 
     # ------------------------------------------------------------------ output
     def poll(self, now_host_ns: int, *, flush: bool = False) -> int:
@@ -233,24 +230,21 @@ class Geotagger:
         `flush` emits everything (at shutdown). Returns the number emitted."""
         emitted = 0
         while True:
-            with self._lock:
-                if not self._pending:
-                    return emitted
-                p = self._pending[0]
+            if not self._pending:
+                return emitted
+            p = self._pending[0]
             mid_host_ns = self._mid_host_ns(p)
             waited_ms = (now_host_ns - mid_host_ns) / 1e6
             if not (flush or waited_ms >= self._wait_limit_ms(mid_host_ns) or self._later_samples_arrived(mid_host_ns)):
                 return emitted
             record = self._build(p, mid_host_ns, now_host_ns)
-            with self._lock:
-                self._pending.popleft()
+            self._pending.popleft()
             self._emit(record)
             emitted += 1
 
     @property
     def pending(self) -> int:
-        with self._lock:
-            return len(self._pending)
+        return len(self._pending)
 
     # ------------------------------------------------------------------ internals
     def _mid_host_ns(self, p: _Pending) -> int:

@@ -21,8 +21,11 @@ A ground station's image index is the camera component's (0, 1, ...), not the de
 two are paired through the log's /camera/images records (the first version of this script paired them by
 number and so measured one capture interval too much: 1036 / 236 / 85 ms at 1 / 5 / 20 fps).
 
-Measured 2026-12-04 (`--fps 0.5,1,5,10,20 --capture-s 12`, 2 cores, other work running): see the closing
-note of issue 33; the table this prints is the figure.
+Measured 2026-12-04 (`--capture-s 12`, 2 cores shared with other work), p95 exposure -> CAMERA_IMAGE_CAPTURED:
+0.5 / 1 / 5 fps 40.9 / 37.7 / 38.1 ms (before the worker's capture-start nudge and 10 ms retries: 63.5 / 51.2 /
+60.7, 20 fps 40.6); everything pinned to one core (`taskset -c 0`, simulator and ground station included, a
+Pi-class stand-in) 1 / 5 / 20 fps 36.0 / 46.5 / 44.4 ms. The floor is the telemetry: the first 50 Hz sample
+after mid-exposure arrives up to 20 ms after it.
 """
 
 from __future__ import annotations

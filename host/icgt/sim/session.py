@@ -82,6 +82,8 @@ class SessionFiles:
     truth_clocks: Path
     card: Path
     device_log: Path
+    autopilot_camera: Path
+    """The autopilot's own log of the pictures it commanded (only with `[autopilot.camera]`)."""
 
 
 class SimSession:
@@ -112,6 +114,7 @@ class SimSession:
             truth_clocks=out_dir / "truth_clocks.jsonl",
             card=out_dir / "card",
             device_log=out_dir / "sim_device.log",
+            autopilot_camera=out_dir / "autopilot_camera.json",
         )
         self.clocks: ClockMaps | None = None
         self.urls: SessionUrls | None = None
@@ -281,6 +284,8 @@ class SimSession:
             t.cancel()
         if self._autopilot is not None:
             self._autopilot.stop()
+            if self._autopilot.camera_trigger is not None:
+                self._autopilot.camera_trigger.log.write(self.files.autopilot_camera)
         if self._device is not None:
             if self._device.poll() is None:
                 with contextlib.suppress(ProcessLookupError):

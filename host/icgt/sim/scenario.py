@@ -351,8 +351,10 @@ class AutopilotCamera:
     """`[autopilot.camera]`: the autopilot commands the camera as ArduPilot's AP_Camera does
     (icgt.sim.camera_trigger says exactly how)."""
 
-    backend: Literal["none", "mavlink_camv2", "mavlink"] = "none"
-    """CAM1_TYPE: "mavlink_camv2" (6) IMAGE_START_CAPTURE to component 100, "mavlink" (5) DO_DIGICAM_CONTROL."""
+    backend: Literal["none", "mavlink_camv2", "mavlink", "px4"] = "none"
+    """ArduPilot CAM1_TYPE "mavlink_camv2" (6): IMAGE_START_CAPTURE to component 100; "mavlink" (5):
+    DO_DIGICAM_CONTROL; "px4": PX4's MAVLink camera trigger (CAMERA_TRIGGER, IMAGE_START_CAPTURE re-sent
+    until acknowledged, and DO_DIGICAM_CONTROL, per shot)."""
     interval_s: float = 0.0
     """Time trigger (mission IMAGE_START_CAPTURE with an interval) [s]; 0: none."""
     interval_window_s: Window = (0.0, 0.0)
@@ -657,7 +659,7 @@ def _read_autopilot_camera(r: TableReader) -> AutopilotCamera:
         return (v[0], v[1])
 
     cam = AutopilotCamera(
-        backend=r.string("backend", "none", choices=("none", "mavlink_camv2", "mavlink")),  # type: ignore[arg-type]
+        backend=r.string("backend", "none", choices=("none", "mavlink_camv2", "mavlink", "px4")),  # type: ignore[arg-type]
         interval_s=r.number("interval_s", 0.0, min_value=0.0, max_value=3600.0),
         interval_window_s=window("interval_window_s"),
         distance_m=r.number("distance_m", 0.0, min_value=0.0, max_value=10_000.0),

@@ -99,8 +99,11 @@ class SimSession:
         device_link: str = "pty",
         device_binary: Path | None = None,
         hold: bool = False,
+        autopilot: bool = True,
     ) -> None:
-        """`hold`: the scenario clock waits for `release()` (see there); without it, it starts with `start()`."""
+        """`hold`: the scenario clock waits for `release()` (see there); without it, it starts with `start()`.
+        `autopilot` False: only the device (a real autopilot, e.g. SITL, flies; `urls.mavlink` is then "")."""
+        self._with_autopilot = autopilot
         self.scenario = scenario
         self.out_dir = out_dir
         self._mavlink_port = mavlink_port
@@ -195,6 +198,11 @@ class SimSession:
             self.stop()
             raise SimError(f"icgt-sim-device did not start ({first!r}); see {self.files.device_log}")
         device_url = first.removeprefix("link: ")
+        if not self._with_autopilot:
+            self.urls = SessionUrls(device=device_url, mavlink="", gcs="")
+            self._schedule_faults()
+            self._started_ns = time.monotonic_ns()
+            return self.urls
         self._autopilot = SimAutopilot(
             sc,
             self.clocks,

@@ -24,6 +24,9 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
+from mcap.reader import make_reader
+
+from icgt.recording import layout
 from icgt.sim.camera_trigger import read_trigger_log
 from icgt.sim.evaluate import read_frames, read_truth
 from icgt.sim.live_recorder import LiveRecorder
@@ -50,6 +53,10 @@ class Flown:
             mcap = live.stop()
             files = live.session.files
         self.sc = sc
+        self.recorder_log = live.recorder_log.read_text(encoding="utf-8")
+        with mcap.open("rb") as f:
+            topic = layout.mavlink_topic("GLOBAL_POSITION_INT")
+            self.position_log_ns = [m.log_time for _, _, m in make_reader(f).iter_messages(topics=[topic])]
         self.log = read_trigger_log(files.autopilot_camera)
         self.frames = sorted(read_frames(mcap), key=lambda f: int(f["start_device_us"]))
         self.truth = sorted(read_truth(files.truth_exposures), key=lambda t: float(t["mid_tau_s"]))
@@ -126,3 +133,12 @@ def test_trigger_rules_as_ardupilot(flown: Flown) -> None:
     if cam.backend == "mavlink_camv2":
         assert flown.log["camera_found_tau_s"] is not None
         assert flown.log["info_requests"] >= 1
+
+
+def test_streams_at_the_requested_rate_after_ardupilots_boot_reset(flown: Flown) -> None:
+    """`stream_reset_s`: whether the recorder's requests came before the reset (then it must notice the
+    4 Hz and ask again) or after, GLOBAL_POSITION_INT runs at the 50 Hz asked for when capture runs."""
+    t = np.asarray(flown.position_log_ns, dtype=float) * 1e-9
+    end = t.max()
+    last = t[t > end - 8.0]
+    assert len(last) / 8.0 > 25.0, (len(last), flown.recorder_log[-2000:])

@@ -267,6 +267,8 @@ class SimAutopilot:
         self.forwarded_counts: dict[str, int] = {"to_companion": 0, "to_gcs": 0}
         self.errors: list[str] = []
         """Unexpected exceptions caught in the worker threads (empty in a healthy run)."""
+        self.stream_resets = 0
+        """Times every stream went back to its profile rate (`stream_reset_s`)."""
         self._trigger_lock = threading.Lock()
         self.camera_trigger: CameraTrigger | None = None
         """ArduPilot's camera backend commanding the camera (`[autopilot.camera]`), with its log."""
@@ -779,6 +781,8 @@ class SimAutopilot:
             plan.append((start, "camera_heartbeat", 0))
         if ap.own_timesync_hz > 0.0:
             plan.append((start, "own_timesync", 0))
+        if ap.stream_reset_s > 0.0:
+            plan.append((max(start, ap.stream_reset_s), "stream_reset", 0))
         if self.camera_trigger is not None:
             plan.append((start, "camera_update", 0))
         if ap.origin_on_change:
@@ -843,6 +847,14 @@ class SimAutopilot:
             if self._companion is not None and not self._companion_dropped(self._tau_now()):
                 self._companion.send(self._codec.timesync_encode(0, self._ap_now_us() * 1000))
             return 1.0 / ap.own_timesync_hz
+        if kind == "stream_reset":  # ArduPilot's boot ends: SRn_ rates applied over earlier requests
+            with self._cond:
+                for stream in self._streams.values():
+                    stream.interval_us = stream.default_interval_us
+                    self._restart_stream(stream, self._ap_now_us())
+                self._cond.notify_all()
+            self.stream_resets += 1
+            return None
         if kind == "camera_update":
             if self.camera_trigger is not None:
                 with self._trigger_lock:

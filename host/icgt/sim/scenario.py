@@ -322,7 +322,12 @@ class Autopilot:
     """> 0: GPS_RAW_INT carries the receiver's latest fix on this grid (time_usec = its boot time, whole ms,
     as ArduPilot); 0: each GPS_RAW_INT is its own sample at its own stamp."""
     own_timesync_hz: float = 0.0
-    """Rate of the autopilot's own TIMESYNC requests (tc1 = 0, ts1 = its boot time [ns]); PX4 sends 10 Hz."""
+    """Rate of the autopilot's own TIMESYNC requests (tc1 = 0, ts1 = its boot time [ns]); PX4 sends 10 Hz,
+    ArduPilot one every 10 s on each link (GCS_MAVLINK _timesync_request.interval_ms)."""
+    stream_reset_s: float = 0.0
+    """> 0: at this scenario time every stream goes back to the profile's rate, whatever SET_MESSAGE_INTERVAL
+    asked (and ACCEPTED) before: ArduPilot applies its SRn_ stream rates when its boot ends (~2.4 s after
+    start in SITL), undoing the requests it took during the boot."""
     origin_on_change: bool = False
     """Send GPS_GLOBAL_ORIGIN when the EKF origin is first set (first fix) and at each origin reset."""
     origin_resets_s: tuple[float, ...] = ()
@@ -632,6 +637,7 @@ def _read_autopilot(r: TableReader) -> Autopilot:
         ),
         gps_fix_rate_hz=r.number("gps_fix_rate_hz", base["gps_fix_rate_hz"], min_value=0.0, max_value=100.0),
         own_timesync_hz=r.number("own_timesync_hz", base["own_timesync_hz"], min_value=0.0, max_value=100.0),
+        stream_reset_s=r.number("stream_reset_s", 0.0, min_value=0.0, max_value=3600.0),
         origin_on_change=r.boolean("origin_on_change", base["origin_on_change"]),
         origin_resets_s=r.numbers("origin_resets_s", min_value=0.0),
         origin_reset_shift_m=r.vec3("origin_reset_shift_m", (300.0, 380.0, 0.0)),

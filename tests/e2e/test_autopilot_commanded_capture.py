@@ -22,9 +22,8 @@ from typing import Any
 
 import numpy as np
 import pytest
-from pymavlink.dialects.v20 import common as mavlink2
-
 from mcap.reader import make_reader
+from pymavlink.dialects.v20 import common as mavlink2
 
 from icgt.recording import layout
 from icgt.sim.camera_trigger import read_trigger_log

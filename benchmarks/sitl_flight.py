@@ -9,7 +9,8 @@ This script is the ground station on SERIAL0 (TCP 5760, system 255): it uploads 
 (take-off, a horizontal line with DO_SET_CAM_TRIGG_DIST, a vertical scan line with a time trigger
 (mission IMAGE_START_CAPTURE with an interval), land) and flies it in AUTO. ArduPilot's MAVLink camera
 backend (CAM1_TYPE = 6, MAVLinkCamV2) finds our camera (component 100) and sends one IMAGE_START_CAPTURE
-per picture. Every frame is scored against the SITL's own truth:
+per picture (`--cam-type 5`: AP_Camera_MAVLink, one DO_DIGICAM_CONTROL to every component it has
+heard). Every frame is scored against the SITL's own truth:
 
 - truth position and velocity: SIM_STATE (the physics model, not the EKF) at 50 Hz on this script's
   link, stamped on arrival (host monotonic clock), interpolated at the true mid-exposure (the simulated
@@ -330,7 +331,14 @@ def clock_irregularity(sync: list[tuple[int, int, int]]) -> tuple[float, float]:
 
 
 def score(
-    out: Path, gcs: Gcs, mcap: Path, truth_path: Path, sitl_dir: Path, home: tuple[float, float, float], timesync: bool
+    out: Path,
+    gcs: Gcs,
+    mcap: Path,
+    truth_path: Path,
+    sitl_dir: Path,
+    home: tuple[float, float, float],
+    timesync: bool,
+    cam_type: int,
 ) -> int:
     frames = sorted(read_frames(mcap), key=lambda f: int(f["start_device_us"]))
     truth = sorted(read_truth(truth_path), key=lambda t: int(t["mid_host_monotonic_ns"]))
@@ -381,8 +389,10 @@ def score(
         "frames with one true exposure": len({int(f["start_device_us"]) for f in frames} & set(by_start)),
     }
     once = len(set(counts.values())) == 1 and len(truth) > 0
+    backend = "MAVLinkCamV2" if cam_type == 6 else "MAVLink, DO_DIGICAM_CONTROL"
     how = "with TIMESYNC" if timesync else "WITHOUT TIMESYNC (relay drops it both ways)"
-    print(f"\nArduCopter SITL flight, icgt record on SERIAL1 {how}, camera commanded by CAM1_TYPE = 6 (MAVLinkCamV2)")
+    print(f"\nArduCopter SITL flight, icgt record on SERIAL1 {how},")
+    print(f"camera commanded by CAM1_TYPE = {cam_type} ({backend})")
     for k, v in counts.items():
         print(f"  {k:44s} {v}")
     print(f"  every commanded exposure recorded once:      {'yes' if once else 'NO'} (goal: yes)")
@@ -400,6 +410,7 @@ def score(
     print(f"  geotag error vs SIM_STATE (incl. EKF) [cm]   {pct(pos_cm, 'cm')}")
     result = {
         "timesync": timesync,
+        "cam1_type": cam_type,
         "counts": counts,
         "every_exposure_once": once,
         "clock_ms": clock_ms,
@@ -421,7 +432,9 @@ def score(
     return 0 if ok else 1
 
 
-def set_params(binary: Path, defaults: Path, sitl_dir: Path, home: tuple[float, float, float]) -> None:
+def set_params(
+    binary: Path, defaults: Path, sitl_dir: Path, home: tuple[float, float, float], params: dict[str, float]
+) -> None:
     """A first boot that stores PARAMS in the SITL's eeprom.bin (CAM1_TYPE given by --defaults reads 0 here)."""
     with (sitl_dir / "sitl_params.log").open("wb") as log:
         proc = subprocess.Popen(
@@ -440,7 +453,7 @@ def set_params(binary: Path, defaults: Path, sitl_dir: Path, home: tuple[float, 
         if conn is None:
             raise RuntimeError(f"the SITL did not open TCP 5760; see {sitl_dir / 'sitl_params.log'}")
         conn.wait_heartbeat(timeout=30)
-        for name, value in PARAMS.items():
+        for name, value in params.items():
             for _ in range(10):
                 conn.mav.param_set_send(1, 1, name.encode(), float(value), mav.MAV_PARAM_TYPE_REAL32)
                 m = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=1.0)
@@ -476,6 +489,13 @@ def main() -> int:
     parser.add_argument("--defaults", type=Path, help="copter.parm (default: beside the binary's source tree)")
     parser.add_argument("--out", type=Path, default=Path("bench-out/sitl_flight"))
     parser.add_argument(
+        "--cam-type",
+        type=int,
+        choices=(6, 5),
+        default=6,
+        help="CAM1_TYPE: 6 MAVLinkCamV2 (IMAGE_START_CAPTURE), 5 MAVLink (DO_DIGICAM_CONTROL to every component)",
+    )
+    parser.add_argument(
         "--no-timesync", action="store_true", help="drop TIMESYNC between the SITL and the recorder (a relay)"
     )
     args = parser.parse_args()
@@ -502,7 +522,7 @@ def main() -> int:
     sc = dataclasses.replace(base, name="sitl_flight", duration_s=900.0, camera=cam, autopilot=ap)
     home = (sc.origin.lat_deg, sc.origin.lon_deg, sc.origin.alt_m)
 
-    set_params(binary, defaults, sitl_dir, home)
+    set_params(binary, defaults, sitl_dir, home, {**PARAMS, "CAM1_TYPE": args.cam_type})
     for old in (sitl_dir / "logs").glob("*.BIN"):
         old.unlink()
     sitl: subprocess.Popen[bytes] | None = None
@@ -553,7 +573,9 @@ def main() -> int:
     mcaps = sorted((out / "recording").glob("*.mcap"))
     if rec is None or rec.returncode != 0 or not mcaps:
         return fail(f"the recorder failed (exit {rec.returncode if rec else None}); see {out / 'recorder.log'}")
-    return score(out, gcs, mcaps[-1], session.files.truth_exposures, sitl_dir, home, timesync=not args.no_timesync)
+    return score(
+        out, gcs, mcaps[-1], session.files.truth_exposures, sitl_dir, home, not args.no_timesync, args.cam_type
+    )
 
 
 if __name__ == "__main__":

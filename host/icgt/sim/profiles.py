@@ -40,6 +40,9 @@ sent 2 ms later, TIMESYNC answered, SET_MESSAGE_INTERVAL honoured and ACKed, no 
   ACCEPTED and then undone by the SRn_ rates (`stream_reset_s`, off by default: a scenario sets it);
   GPS_GLOBAL_ORIGIN and HOME_POSITION come once each when the EKF origin is set (~20 s after boot in
   SITL, well before the EKF uses GPS, ~41 s); the MAVLinkCamV2 camera backend is icgt.sim.camera_trigger.
+  TIMESYNC's tc1 is the request's receive time less its transfer time at the port's baud rate (and the
+  bytes waiting): on a real UART the frame's true start; on SITL's TCP ports, where the baud rate is
+  nominal, up to ~2.5 ms early at 115200 (not simulated: the simulator answers with the receive time).
 
 **px4** (PX4-Autopilot, src/modules/mavlink/mavlink_main.cpp, configure_streams_to_default,
 MAVLINK_MODE_ONBOARD, the mode of a companion link):

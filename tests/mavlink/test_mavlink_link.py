@@ -611,3 +611,26 @@ def test_one_frame_datagrams_decode_as_the_byte_stream_parser_decodes_them():
     assert whole == stream
     assert [m[0] for m in whole[len(good) :]] == ["UNKNOWN_60000"]  # pymavlink's message of an unknown id
     assert whole_bad == stream_bad == 1  # the bad CRC
+
+
+def test_accepted_rate_that_does_not_come_is_asked_for_again_bounded(recorder):
+    """ArduPilot ACKs a SET_MESSAGE_INTERVAL taken during its boot and then resets the stream (issue 29)."""
+    from icgt.mavlink.link_types import StreamRate
+
+    gps = mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT
+    att = mavlink2.MAVLINK_MSG_ID_ATTITUDE
+    rates = (StreamRate(att, "ATTITUDE", 20.0), StreamRate(gps, "GPS_RAW_INT", 10.0))
+    link, port = make_link(recorder, stream_rates=rates, rate_verify_s=0.4, rate_max_rerequests=2)
+    ap = AutopilotPeer(port)  # streams ATTITUDE (50 Hz), never GPS_RAW_INT
+    link.start()
+    try:
+        ap.stream(hz=50)
+        assert wait_until(lambda: len([m for m, _, _ in ap.interval_requests if m == gps]) == 3, timeout=6.0)
+        time.sleep(1.5)  # bounded: no fourth request
+        assert len([m for m, _, _ in ap.interval_requests if m == gps]) == 3
+        assert len([m for m, _, _ in ap.interval_requests if m == att]) == 1, "a stream that comes is left alone"
+        details = [e.detail for e in recorder.of(LinkEventKind.RATE_REQUEST)]
+        assert any("GPS_RAW_INT at 10 Hz: ACCEPTED but 0 came" in d and "(2 of 2)" in d for d in details), details
+    finally:
+        ap.close()
+        link.stop()

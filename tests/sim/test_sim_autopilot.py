@@ -361,3 +361,27 @@ def test_link_drop_silences_the_companion_link_and_stop_cleans_up() -> None:
     assert leaked == []
     rig.ap.stop()  # a second stop is harmless
     assert not math.isnan(rig.clocks.host_ns_to_tau(0))
+
+
+def test_stream_reset_undoes_rates_accepted_before_it_as_ardupilots_boot() -> None:
+    sc = make_scenario(autopilot={"stream_reset_s": 5.6})
+    rig = Rig(sc, 5.0)
+    try:
+        assert rig.companion.wait_for(lambda m: True, 0) is not None  # the companion link is up
+        att = mavlink2.MAVLINK_MSG_ID_ATTITUDE
+        ack = rig.command(rig.companion, mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, att, 20_000)
+        assert ack is not None and ack.result == mavlink2.MAV_RESULT_ACCEPTED  # ACCEPTED, then undone
+        wait_tau(rig.clocks, 5.65)
+        start = time.monotonic_ns()
+        time.sleep(0.5)
+        default = [m for _, _, m in rig.companion.received("ATTITUDE", start)]
+        assert 3 <= len(default) <= 7 and all(m.time_boot_ms % 100 == 0 for m in default)  # the 10 Hz default
+        assert rig.ap.stream_resets == 1
+        ack = rig.command(rig.companion, mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, att, 20_000)  # asked again
+        time.sleep(0.05)
+        start = time.monotonic_ns()
+        time.sleep(0.5)
+        assert len(rig.companion.received("ATTITUDE", start)) >= 20
+    finally:
+        rig.close()
+    assert rig.ap.errors == []

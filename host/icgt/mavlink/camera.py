@@ -51,6 +51,7 @@ from collections import OrderedDict, deque
 from collections.abc import Callable
 from pathlib import Path
 
+from icgt.mavlink.camera_commanded import ShotPairing
 from icgt.mavlink.camera_images import CameraError, CapturedImage, ImageHistory, encode_image_captured, image_range
 from icgt.mavlink.camera_types import (
     CameraConfig,
@@ -196,6 +197,7 @@ class CameraComponent:
         self._resend_period_ns = int(1e9 / max(config.resend_rate_hz, 1e-3))
         # executed commands by key: (first receipt, expiry, outcome)
         self._recent: OrderedDict[tuple[object, ...], tuple[int, int, _Outcome]] = OrderedDict()
+        self.pairing = ShotPairing()  # PX4 asks for one shot twice (icgt.mavlink.camera_commanded)
         if config.require_signing and link.signing is None:
             raise CameraError("require_signing needs a link with a signing key (LinkConfig.signing_key)")
         # refusals: counted here, logged throttled, answered at most refusal_ack_hz
@@ -411,7 +413,11 @@ class CameraComponent:
                 duplicate = True
                 break
         if outcome is None:
-            outcome = self._dispatch(cmd)
+            args = (cmd.rx_ns, cmd.src_system, cmd.src_component, cmd.command)
+            paired = self.pairing.match(*args, cmd.confirmation, cmd.params)
+            outcome = _Outcome(int(CommandResult.ACCEPTED), reason=paired) if paired else self._dispatch(cmd)
+            if not paired and outcome.result == CommandResult.ACCEPTED:
+                self.pairing.taken(*args, cmd.params)
             if record and outcome.result is not None:
                 expires = now + int(self.config.dedupe_window_s * 1e9)
                 for key in record:

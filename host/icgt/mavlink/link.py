@@ -181,6 +181,9 @@ class MavlinkLink:
         # stream rates
         self._rate_jobs: list[_RateJob] = []
         self._rate_results: dict[int, RateRequestResult] = {}
+        self._ap_rx_count: dict[int, int] = {}  # message id -> messages received from the autopilot
+        self._rate_window: dict[int, tuple[int, int]] = {}  # message id -> (window start ns, count then)
+        self._rate_rerequests: dict[int, int] = {}  # message id -> re-requests since the autopilot appeared
         self._confirmation = 0
         # owner-pumped (see the module docstring): no threads; pump() reads and services
         self._pumped = False
@@ -807,6 +810,8 @@ class MavlinkLink:
             )
             self._autopilot_fresh_locked(now)
         self._last_ap_rx_ns = now
+        msg_id = rec.msg.get_msgId()
+        self._ap_rx_count[msg_id] = self._ap_rx_count.get(msg_id, 0) + 1
         if rebooted:
             events.append(
                 MavlinkEvent(LinkEventKind.AUTOPILOT_REBOOTED, now, sysid, compid, detail=self._presence.detail)
@@ -980,6 +985,8 @@ class MavlinkLink:
                     rate_to_send = job.rate
                     confirmation = min(job.attempts - 1, 255)
                 break
+            if not self._rate_jobs and self._state is LinkState.UP:
+                events.extend(self._rates_not_arriving_locked(now))
         for event, level in events:
             self._emit(event, level)
         if send_timesync:
@@ -1014,6 +1021,42 @@ class MavlinkLink:
     def _schedule_rates_locked(self) -> None:
         if self.config.request_rates:
             self._rate_jobs = [_RateJob(rate) for rate in self.config.stream_rates]
+            self._rate_rerequests.clear()
+
+    def _rates_not_arriving_locked(self, now: int) -> list[tuple[MavlinkEvent, int]]:
+        """Ask again for streams the autopilot ACCEPTED but sends at under a fifth of the rate asked, over
+        each `rate_verify_s` window (ArduPilot resets them at the end of its boot; a parameter download
+        slows them only 4 times)."""
+        events: list[tuple[MavlinkEvent, int]] = []
+        verify_ns = int(self.config.rate_verify_s * 1e9)
+        for rate in self.config.stream_rates:
+            mid = rate.message_id
+            result = self._rate_results.get(mid)
+            if result is None or not result.accepted or rate.rate_hz <= 0:
+                continue
+            count = self._ap_rx_count.get(mid, 0)
+            start, count0 = self._rate_window.get(mid, (0, 0))
+            if start < result.host_ns:
+                self._rate_window[mid] = (now, count)
+                continue
+            if now - start < verify_ns:
+                continue
+            self._rate_window[mid] = (now, count)
+            expected = rate.rate_hz * (now - start) / 1e9
+            tries = self._rate_rerequests.get(mid, 0)
+            if count - count0 >= 0.2 * expected or tries >= self.config.rate_max_rerequests:
+                continue
+            self._rate_rerequests[mid] = tries + 1
+            self._rate_jobs.append(_RateJob(rate))
+            detail = (
+                f"{rate.name} at {rate.rate_hz:g} Hz: ACCEPTED but {count - count0} came in "
+                f"{(now - start) / 1e9:.1f} s; asking again ({tries + 1} of {self.config.rate_max_rerequests})"
+            )
+            event = MavlinkEvent(
+                LinkEventKind.RATE_REQUEST, now, self._ap_system, self._ap_component or 0, detail=detail
+            )
+            events.append((event, logging.WARNING))
+        return events
 
     def _rate_event(self, result: RateRequestResult) -> tuple[MavlinkEvent, int]:
         """Called with self._lock held."""

@@ -143,6 +143,11 @@ class LinkConfig:
     stream_rates: tuple[StreamRate, ...] = DEFAULT_STREAM_RATES
     rate_ack_timeout_s: float = 0.5
     rate_max_attempts: int = 5
+    # An ACCEPTED rate whose message comes at under a fifth of it over this window is asked for again
+    # (ArduPilot ACKs a SET_MESSAGE_INTERVAL taken during its boot, then resets the stream to its SRn_
+    # rate: issue 29) ...
+    rate_verify_s: float = 3.0
+    rate_max_rerequests: int = 5  # ... at most this many times per message
     timesync: bool = True
     timesync_fast_hz: float = 5.0  # after the autopilot appears (again) ...
     timesync_fast_count: int = 20  # ... for this many requests, then:

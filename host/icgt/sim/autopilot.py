@@ -52,6 +52,7 @@ from pymavlink.dialects.v10 import common as mavlink1_dialect
 from pymavlink.dialects.v20 import common as mavlink2
 
 from icgt.geodesy import LocalFrame, enu_to_ned, q_to_euler_zyx
+from icgt.sim.camera_trigger import UPDATE_PERIOD_S, CameraTrigger, trigger_due
 from icgt.sim.scenario import STREAM_NAMES, Scenario, SimError
 from icgt.sim.trajectory import Trajectory, TruthState
 from icgt.sim.truth import ClockMaps
@@ -266,6 +267,19 @@ class SimAutopilot:
         self.forwarded_counts: dict[str, int] = {"to_companion": 0, "to_gcs": 0}
         self.errors: list[str] = []
         """Unexpected exceptions caught in the worker threads (empty in a healthy run)."""
+        self.stream_resets = 0
+        """Times every stream went back to its profile rate (`stream_reset_s`)."""
+        self._trigger_lock = threading.Lock()
+        self.camera_trigger: CameraTrigger | None = None
+        """ArduPilot's camera backend commanding the camera (`[autopilot.camera]`), with its log."""
+        if trigger_due(ap.camera):
+            self.camera_trigger = CameraTrigger(
+                ap.camera,
+                self.system_id,
+                self._codec,
+                self._send_companion,
+                lambda tau: np.asarray(self.trajectory.state(tau).position_enu_m[0], dtype=float),
+            )
 
     # --- lifecycle ----------------------------------------------------------------------------
 
@@ -336,6 +350,11 @@ class SimAutopilot:
 
     def _ap_now_us(self) -> int:
         return math.floor(float(self.clocks.tau_to_autopilot_us(self._tau_now())))
+
+    def _send_companion(self, msg: Any) -> None:
+        """A command of the autopilot's camera backend: on the companion link, where the camera is."""
+        if self._companion is not None and not self._companion_dropped(self._tau_now()):
+            self._companion.send(msg)
 
     def _companion_dropped(self, tau_s: float) -> bool:
         return any(a <= tau_s < b for a, b in self.scenario.faults.autopilot_link_drops_s)
@@ -676,6 +695,9 @@ class SimAutopilot:
         ):
             other.forward(bytes(msg.get_msgbuf()))
             self.forwarded_counts["to_companion" if to_companion else "to_gcs"] += 1
+        if self.camera_trigger is not None and link is self._companion:
+            with self._trigger_lock:
+                self.camera_trigger.on_message(msg)
         for_me = tgt_sys in (0, self.system_id) and tgt_comp in (0, COMPONENT_ID)
         if not for_me:
             return
@@ -759,6 +781,10 @@ class SimAutopilot:
             plan.append((start, "camera_heartbeat", 0))
         if ap.own_timesync_hz > 0.0:
             plan.append((start, "own_timesync", 0))
+        if ap.stream_reset_s > 0.0:
+            plan.append((max(start, ap.stream_reset_s), "stream_reset", 0))
+        if self.camera_trigger is not None:
+            plan.append((start, "camera_update", 0))
         if ap.origin_on_change:
             plan.append((max(start, self.scenario.gps.fix_acquired_after_s), "origin", 0))
             plan += [(t, "origin", 0) for t in ap.origin_resets_s if t > self.scenario.gps.fix_acquired_after_s]
@@ -821,6 +847,19 @@ class SimAutopilot:
             if self._companion is not None and not self._companion_dropped(self._tau_now()):
                 self._companion.send(self._codec.timesync_encode(0, self._ap_now_us() * 1000))
             return 1.0 / ap.own_timesync_hz
+        if kind == "stream_reset":  # ArduPilot's boot ends: SRn_ rates applied over earlier requests
+            with self._cond:
+                for stream in self._streams.values():
+                    stream.interval_us = stream.default_interval_us
+                    self._restart_stream(stream, self._ap_now_us())
+                self._cond.notify_all()
+            self.stream_resets += 1
+            return None
+        if kind == "camera_update":
+            if self.camera_trigger is not None:
+                with self._trigger_lock:
+                    self.camera_trigger.update(self._tau_now(), self._ap_now_us() // 1000)
+            return UPDATE_PERIOD_S
         if kind == "origin":
             msg = self._origin_message(self._ap_now_us())
             for link in self._links_now():

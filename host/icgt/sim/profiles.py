@@ -34,6 +34,15 @@ sent 2 ms later, TIMESYNC answered, SET_MESSAGE_INTERVAL honoured and ACKed, no 
 - While parameters are being sent, streams run "4 or more times slower than requested"
   (mavlink-requesting-data.html): ``param_burst_stream_divisor = 4``.
 - HEARTBEAT 1 Hz, MAV_AUTOPILOT_ARDUPILOTMEGA.
+- Measured on ArduCopter 4.7.0-dev SITL (issue 29, docs/sitl.md): it sends its own TIMESYNC request
+  every 10 s on each link (first ~10 s after boot, ts1 = boot ns + its system id):
+  ``own_timesync_hz = 0.1``; a SET_MESSAGE_INTERVAL taken before its boot ends (~2.4 s) is ACKed
+  ACCEPTED and then undone by the SRn_ rates (`stream_reset_s`, off by default: a scenario sets it);
+  GPS_GLOBAL_ORIGIN and HOME_POSITION come once each when the EKF origin is set (~20 s after boot in
+  SITL, well before the EKF uses GPS, ~41 s); the MAVLinkCamV2 camera backend is icgt.sim.camera_trigger.
+  TIMESYNC's tc1 is the request's receive time less its transfer time at the port's baud rate (and the
+  bytes waiting): on a real UART the frame's true start; on SITL's TCP ports, where the baud rate is
+  nominal, up to ~2.5 ms early at 115200 (not simulated: the simulator answers with the receive time).
 
 **px4** (PX4-Autopilot, src/modules/mavlink/mavlink_main.cpp, configure_streams_to_default,
 MAVLINK_MODE_ONBOARD, the mode of a companion link):
@@ -100,7 +109,7 @@ PROFILES: Mapping[str, Mapping[str, Any]] = {
         "stamp_jitter_ms": 2.5,
         "local_position_lag_ms": 20.0,
         "gps_fix_rate_hz": 5.0,
-        "own_timesync_hz": 0.0,
+        "own_timesync_hz": 0.1,
         "origin_on_change": True,
         "param_burst_stream_divisor": 4,
     },

@@ -322,7 +322,12 @@ class Autopilot:
     """> 0: GPS_RAW_INT carries the receiver's latest fix on this grid (time_usec = its boot time, whole ms,
     as ArduPilot); 0: each GPS_RAW_INT is its own sample at its own stamp."""
     own_timesync_hz: float = 0.0
-    """Rate of the autopilot's own TIMESYNC requests (tc1 = 0, ts1 = its boot time [ns]); PX4 sends 10 Hz."""
+    """Rate of the autopilot's own TIMESYNC requests (tc1 = 0, ts1 = its boot time [ns]); PX4 sends 10 Hz,
+    ArduPilot one every 10 s on each link (GCS_MAVLINK _timesync_request.interval_ms)."""
+    stream_reset_s: float = 0.0
+    """> 0: at this scenario time every stream goes back to the profile's rate, whatever SET_MESSAGE_INTERVAL
+    asked (and ACCEPTED) before: ArduPilot applies its SRn_ stream rates when its boot ends (~2.4 s after
+    start in SITL), undoing the requests it took during the boot."""
     origin_on_change: bool = False
     """Send GPS_GLOBAL_ORIGIN when the EKF origin is first set (first fix) and at each origin reset."""
     origin_resets_s: tuple[float, ...] = ()
@@ -342,6 +347,28 @@ class Autopilot:
     forwards to the companion link: 245 MAVSDK, 250, 255 QGroundControl / MAVProxy / Mission Planner."""
     foreign_camera: bool = False
     """A second camera at component 100 of the vehicle (HEARTBEAT 1 Hz, MAV_TYPE_CAMERA) on both links."""
+    camera: AutopilotCamera = field(default_factory=lambda: AutopilotCamera())
+    """How the autopilot itself commands the camera during the flight (none by default)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class AutopilotCamera:
+    """`[autopilot.camera]`: the autopilot commands the camera as ArduPilot's AP_Camera does
+    (icgt.sim.camera_trigger says exactly how)."""
+
+    backend: Literal["none", "mavlink_camv2", "mavlink", "px4"] = "none"
+    """ArduPilot CAM1_TYPE "mavlink_camv2" (6): IMAGE_START_CAPTURE to component 100; "mavlink" (5):
+    DO_DIGICAM_CONTROL; "px4": PX4's MAVLink camera trigger (CAMERA_TRIGGER, IMAGE_START_CAPTURE re-sent
+    until acknowledged, and DO_DIGICAM_CONTROL, per shot)."""
+    interval_s: float = 0.0
+    """Time trigger (mission IMAGE_START_CAPTURE with an interval) [s]; 0: none."""
+    interval_window_s: Window = (0.0, 0.0)
+    """[start_s, end_s] scenario times the time trigger runs."""
+    distance_m: float = 0.0
+    """Distance trigger (DO_SET_CAM_TRIGG_DIST) [m]; 0: none."""
+    distance_window_s: Window = (0.0, 0.0)
+    min_interval_s: float = 0.0
+    """CAM1_INTRVAL_MIN [s]."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -610,6 +637,7 @@ def _read_autopilot(r: TableReader) -> Autopilot:
         ),
         gps_fix_rate_hz=r.number("gps_fix_rate_hz", base["gps_fix_rate_hz"], min_value=0.0, max_value=100.0),
         own_timesync_hz=r.number("own_timesync_hz", base["own_timesync_hz"], min_value=0.0, max_value=100.0),
+        stream_reset_s=r.number("stream_reset_s", 0.0, min_value=0.0, max_value=3600.0),
         origin_on_change=r.boolean("origin_on_change", base["origin_on_change"]),
         origin_resets_s=r.numbers("origin_resets_s", min_value=0.0),
         origin_reset_shift_m=r.vec3("origin_reset_shift_m", (300.0, 380.0, 0.0)),
@@ -621,9 +649,31 @@ def _read_autopilot(r: TableReader) -> Autopilot:
         ),
         gcs_heartbeat_systems=gcs,
         foreign_camera=r.boolean("foreign_camera", False),
+        camera=_read_autopilot_camera(r.table("camera")),
     )
     r.finish()
     return ap
+
+
+def _read_autopilot_camera(r: TableReader) -> AutopilotCamera:
+    def window(key: str) -> Window:
+        v = r.numbers(key, min_value=0.0)
+        if not v:
+            return (0.0, 0.0)
+        if len(v) != 2 or v[1] <= v[0]:
+            r.fail(key, f"expected [start_s, end_s] with the end after the start, got {list(v)}")
+        return (v[0], v[1])
+
+    cam = AutopilotCamera(
+        backend=r.string("backend", "none", choices=("none", "mavlink_camv2", "mavlink", "px4")),  # type: ignore[arg-type]
+        interval_s=r.number("interval_s", 0.0, min_value=0.0, max_value=3600.0),
+        interval_window_s=window("interval_window_s"),
+        distance_m=r.number("distance_m", 0.0, min_value=0.0, max_value=10_000.0),
+        distance_window_s=window("distance_window_s"),
+        min_interval_s=r.number("min_interval_s", 0.0, min_value=0.0, max_value=3600.0),
+    )
+    r.finish()
+    return cam
 
 
 def _read_clocks(r: TableReader) -> Clocks:

@@ -82,6 +82,8 @@ class SessionFiles:
     truth_clocks: Path
     card: Path
     device_log: Path
+    autopilot_camera: Path
+    """The autopilot's own log of the pictures it commanded (only with `[autopilot.camera]`)."""
 
 
 class SimSession:
@@ -97,8 +99,11 @@ class SimSession:
         device_link: str = "pty",
         device_binary: Path | None = None,
         hold: bool = False,
+        autopilot: bool = True,
     ) -> None:
-        """`hold`: the scenario clock waits for `release()` (see there); without it, it starts with `start()`."""
+        """`hold`: the scenario clock waits for `release()` (see there); without it, it starts with `start()`.
+        `autopilot` False: only the device (a real autopilot, e.g. SITL, flies; `urls.mavlink` is then "")."""
+        self._with_autopilot = autopilot
         self.scenario = scenario
         self.out_dir = out_dir
         self._mavlink_port = mavlink_port
@@ -112,6 +117,7 @@ class SimSession:
             truth_clocks=out_dir / "truth_clocks.jsonl",
             card=out_dir / "card",
             device_log=out_dir / "sim_device.log",
+            autopilot_camera=out_dir / "autopilot_camera.json",
         )
         self.clocks: ClockMaps | None = None
         self.urls: SessionUrls | None = None
@@ -192,6 +198,11 @@ class SimSession:
             self.stop()
             raise SimError(f"icgt-sim-device did not start ({first!r}); see {self.files.device_log}")
         device_url = first.removeprefix("link: ")
+        if not self._with_autopilot:
+            self.urls = SessionUrls(device=device_url, mavlink="", gcs="")
+            self._schedule_faults()
+            self._started_ns = time.monotonic_ns()
+            return self.urls
         self._autopilot = SimAutopilot(
             sc,
             self.clocks,
@@ -281,6 +292,8 @@ class SimSession:
             t.cancel()
         if self._autopilot is not None:
             self._autopilot.stop()
+            if self._autopilot.camera_trigger is not None:
+                self._autopilot.camera_trigger.log.write(self.files.autopilot_camera)
         if self._device is not None:
             if self._device.poll() is None:
                 with contextlib.suppress(ProcessLookupError):

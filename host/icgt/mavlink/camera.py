@@ -202,7 +202,9 @@ class CameraComponent:
         self._refusal_acks = TokenBucket(config.refusal_ack_hz, max(1, int(config.refusal_ack_hz)))
         period = config.log_period_s
         self._log_untrusted = ThrottledLog(log, "ignored commands without a valid signature", period_s=period)
-        self._log_denied = ThrottledLog(log, "denied commands from systems not allowed", period_s=period)
+        self._log_denied = ThrottledLog(
+            log, "denied commands from systems not in [mavlink] ground_station_systems", period_s=period
+        )
         self._log_overflow = ThrottledLog(log, "commands refused, camera queue full", period_s=period)
         self._counts = {
             "rejected_commands": 0,  # every command addressed to us that was not executed
@@ -301,7 +303,8 @@ class CameraComponent:
         if rec.src_system not in self._allowed:
             reason = (
                 f"command {command} from system {rec.src_system} (component {rec.src_component}): not an allowed "
-                f"ground station {sorted(self.config.ground_station_systems)} or the autopilot"
+                f"ground station {sorted(self.config.ground_station_systems)} or the autopilot; add "
+                f"{rec.src_system} to [mavlink] ground_station_systems to let it command the camera"
             )
             self._refused(rec, command, "denied_systems", reason, self._log_denied, CommandResult.DENIED)
             return

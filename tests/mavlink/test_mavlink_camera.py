@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 import time
@@ -354,6 +355,24 @@ def test_unknown_commands_targeted_unsupported_broadcast_silent(rig):
     rig.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, target=(1, 0))
     time.sleep(0.3)
     assert rig.gcs.messages("COMMAND_ACK", since) == []
+
+
+def test_repeated_broadcast_we_do_not_implement_is_ignored_quietly(rig, caplog):
+    """MAVProxy asks for the home position with a broadcast GET_HOME_POSITION every few seconds: not the
+    camera's business. No ACK, no command record, nothing at INFO or above, one debug line in all."""
+    with caplog.at_level(logging.DEBUG, logger="icgt.mavlink.camera"):
+        since = rig.gcs.mark()
+        for target in ((0, 0), (1, 0), (0, 0), (1, 0), (0, 0)):
+            rig.command(M.MAV_CMD_GET_HOME_POSITION, target=target)
+        assert wait_until(lambda: rig.camera.counters["broadcasts_ignored"] == 5, timeout=5.0)
+        # a command we do answer, sent after them, shows they have all been handled
+        assert rig.ack(M.MAV_CMD_REQUEST_MESSAGE, rig.command(M.MAV_CMD_REQUEST_MESSAGE, 259)).result == ACCEPTED
+    acks = [a for a in rig.gcs.messages("COMMAND_ACK", since) if a.command == M.MAV_CMD_GET_HOME_POSITION]
+    assert acks == []
+    assert [r for r in rig.records if r.command == M.MAV_CMD_GET_HOME_POSITION] == []
+    mentions = [r for r in caplog.records if f"command {M.MAV_CMD_GET_HOME_POSITION} " in r.getMessage()]
+    assert len(mentions) == 1 and mentions[0].levelno == logging.DEBUG, [r.getMessage() for r in mentions]
+    assert rig.camera.counters["rejected_commands"] == 0
 
 
 def test_handler_results_map_to_acks(rig):

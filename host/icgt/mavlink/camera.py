@@ -22,8 +22,10 @@ trusted: no answer at all, counted and logged (rate-limited). A command from a s
 ``refusal_ack_hz`` such answers per second), counted and logged (one line per ``log_period_s`` with the
 counts). These checks run on the link's reader and never queue, so a flood of refused commands does not
 delay a legitimate one. A command that finds the queue full (``command_queue``) is answered
-MAV_RESULT_TEMPORARILY_REJECTED (same rate limit) and counted. Broadcast commands we do not implement get
-no ACK (the addressed component answers); targeted ones get MAV_RESULT_UNSUPPORTED.
+MAV_RESULT_TEMPORARILY_REJECTED (same rate limit) and counted. Broadcast commands we do not implement (MAVProxy's
+GET_HOME_POSITION to component 0 every few seconds) get no ACK (the component they concern answers), no
+command record and one debug line per command for the whole run; they are counted (``broadcasts_ignored``).
+Targeted ones get MAV_RESULT_UNSUPPORTED.
 
 Duplicates: a command is executed once however often it is transmitted. A retransmission is a command
 with confirmation > 0 (the command protocol's rule), or one with the same capture sequence number
@@ -214,7 +216,9 @@ class CameraComponent:
             "queue_overflows": 0,  # ... that found the queue full (ACK TEMPORARILY_REJECTED)
             "refusal_acks_sent": 0,
             "refusal_acks_suppressed": 0,  # refusals past the rate limit: counted, not answered
+            "broadcasts_ignored": 0,  # broadcast commands this camera does not implement (no ACK, not an error)
         }
+        self._ignored_seen: set[tuple[int, int]] = set()
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -428,6 +432,9 @@ class CameraComponent:
             outcome.after()
         if self._status_dirty:
             self._send_capture_status()
+        if outcome.result is None:
+            self._ignored_broadcast(cmd, outcome)
+            return
         log.info(
             "command %d from %d:%d params %s -> %s%s %s",
             cmd.command,
@@ -453,6 +460,24 @@ class CameraComponent:
                 self._on_command(record_)
             except Exception:
                 log.exception("on_command callback raised")
+
+    def _ignored_broadcast(self, cmd: _Command, outcome: _Outcome) -> None:
+        """A broadcast command (or message request) this camera does not implement: not ours to answer (the
+        command protocol: only the component it concerns ACKs a broadcast), so no ACK, no record and no log
+        line but one debug line per command (and requested message) for the whole run; counted."""
+        key = (cmd.command, int(cmd.params[0]) if cmd.command == mavlink2.MAV_CMD_REQUEST_MESSAGE else 0)
+        with self._lock:
+            self._counts["broadcasts_ignored"] += 1
+            first = key not in self._ignored_seen
+            self._ignored_seen.add(key)
+        if first:
+            log.debug(
+                "broadcast command %d from %d:%d ignored (%s); further ones silently",
+                cmd.command,
+                cmd.src_system,
+                cmd.src_component,
+                outcome.reason,
+            )
 
     def _dedupe_keys(self, cmd: _Command) -> tuple[list[tuple[object, ...]], list[tuple[object, ...]]]:
         """(keys that make this command a duplicate, keys to remember it by once executed)."""

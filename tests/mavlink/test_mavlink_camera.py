@@ -446,6 +446,26 @@ def test_camera_image_captured_round_trip_and_re_request(rig):
         rig.camera.publish_image_captured(image(4, lat_deg=91.0))
 
 
+def test_a_request_without_index_from_a_new_client_brings_every_image_it_lacks(rig):
+    """MAVSDK asks REQUEST_MESSAGE(CAMERA_IMAGE_CAPTURED) with param2 = param3 = 0 for whatever index it misses
+    (icgt.mavlink.camera_clients): a client that discovered the camera after images 0..4 gets all five, and
+    the same request afterwards only image 0 (by the protocol's letter). An explicit index stays exact."""
+    for i in range(5):
+        rig.camera.publish_image_captured(image(i))
+    since = rig.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_CAMERA_INFORMATION)
+    rig.gcs.wait_for("CAMERA_INFORMATION", since=since)
+    since = rig.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_CAMERA_IMAGE_CAPTURED, 0, 0)
+    assert rig.ack(M.MAV_CMD_REQUEST_MESSAGE, since).result == ACCEPTED
+    assert wait_until(lambda: len(rig.gcs.messages("CAMERA_IMAGE_CAPTURED", since)) >= 5, timeout=5.0)
+    assert sorted({m.image_index for m in rig.gcs.messages("CAMERA_IMAGE_CAPTURED", since)}) == [0, 1, 2, 3, 4]
+    since = rig.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_CAMERA_IMAGE_CAPTURED, 0, 0)
+    assert rig.ack(M.MAV_CMD_REQUEST_MESSAGE, since).result == ACCEPTED
+    time.sleep(0.3)
+    assert [m.image_index for m in rig.gcs.messages("CAMERA_IMAGE_CAPTURED", since)] == [0]
+    since = rig.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_CAMERA_IMAGE_CAPTURED, math.nan, math.nan)
+    assert rig.ack(M.MAV_CMD_REQUEST_MESSAGE, since).result == M.MAV_RESULT_DENIED  # nothing named, nothing lacking
+
+
 def test_count_limited_capture_returns_to_idle(rig):
     since = rig.command(M.MAV_CMD_IMAGE_START_CAPTURE, 0, 0.1, 2)
     rig.ack(M.MAV_CMD_IMAGE_START_CAPTURE, since)

@@ -53,6 +53,7 @@ from collections import OrderedDict, deque
 from collections.abc import Callable
 from pathlib import Path
 
+from icgt.mavlink.camera_clients import ClientTracker, is_unspecified_image_request
 from icgt.mavlink.camera_images import CameraError, CapturedImage, ImageHistory, encode_image_captured, image_range
 from icgt.mavlink.camera_types import (
     CameraConfig,
@@ -196,6 +197,10 @@ class CameraComponent:
         self.images = ImageHistory()
         self._resend: deque[range] = deque()  # re-requested images still to send (worker only)
         self._resend_period_ns = int(1e9 / max(config.resend_rate_hz, 1e-3))
+        # which images each ground station may have missed (away, restarted): icgt.mavlink.camera_clients
+        self.clients = ClientTracker(gap_s=config.client_gap_s, push_delay_s=config.client_push_delay_s)
+        self._ground_stations = frozenset(config.ground_station_systems) - {ap}
+        self._hb_sub: Subscription | None = None
         # executed commands by key: (first receipt, expiry, outcome)
         self._recent: OrderedDict[tuple[object, ...], tuple[int, int, _Outcome]] = OrderedDict()
         if config.require_signing and link.signing is None:
@@ -226,13 +231,15 @@ class CameraComponent:
             raise CameraError("camera component already started")
         self._stop.clear()
         self._sub = self.link.subscribe(self._on_message, ("COMMAND_LONG", "COMMAND_INT"))
+        self._hb_sub = self.link.subscribe(self._on_heartbeat, ("HEARTBEAT",))
         self._thread = threading.Thread(target=self._worker, name="icgt-camera", daemon=True)
         self._thread.start()
 
     def stop(self, timeout_s: float = 2.0) -> None:
-        if self._sub is not None:
-            self.link.unsubscribe(self._sub)
-            self._sub = None
+        for sub in (self._sub, self._hb_sub):
+            if sub is not None:
+                self.link.unsubscribe(sub)
+        self._sub = self._hb_sub = None
         self._stop.set()
         with contextlib.suppress(queue.Full):
             self._queue.put_nowait(_WAKE)
@@ -264,7 +271,7 @@ class CameraComponent:
     def counters(self) -> dict[str, int]:
         """Refusals by kind (see ``_counts`` in __init__) and the images published."""
         with self._lock:
-            return {**self._counts, "images": len(self.images)}
+            return {**self._counts, **self.clients.counts, "images": len(self.images)}
 
     def set_capturing(self, capturing: bool, interval_s: float = 0.0) -> None:
         """The recorder reports a capture state change the camera did not cause (e.g. it stopped itself)."""
@@ -288,9 +295,14 @@ class CameraComponent:
         if self._status_dirty:
             self._wake()
         self.link.send(encode_image_captured(self.link.mav, indexed))
+        self.clients.published(indexed.image_index, self._clock())
         return indexed
 
     # ------------------------------------------------------------------ reader side (must not block)
+    def _on_heartbeat(self, rec: MavlinkMessage) -> None:
+        if rec.src_system in self._ground_stations:
+            self.clients.heard((rec.src_system, rec.src_component), rec.rx_ns)
+
     def _on_message(self, rec: MavlinkMessage) -> None:
         msg = rec.msg
         target_sys, target_comp = int(msg.target_system), int(msg.target_component)
@@ -312,6 +324,8 @@ class CameraComponent:
             )
             self._refused(rec, command, "denied_systems", reason, self._log_denied, CommandResult.DENIED)
             return
+        if rec.src_system in self._ground_stations:
+            self.clients.heard((rec.src_system, rec.src_component), rec.rx_ns)
         params, confirmation = _command_params(rec)
         item = _Command(rec.rx_ns, rec.src_system, rec.src_component, command, confirmation, params, target_comp == 0)
         try:
@@ -375,10 +389,14 @@ class CameraComponent:
                 log.exception("camera periodic message failed")
             for throttled in (self._log_untrusted, self._log_denied, self._log_overflow):
                 throttled.tick(now)
+            self._resend.extend(self.clients.due(now))
             if self._resend and now >= next_resend:
                 self._resend_one()
                 next_resend = now + self._resend_period_ns
             deadline = min(next_hb, next_status)
+            push_ns = self.clients.next_due_ns()
+            if push_ns is not None:
+                deadline = min(deadline, push_ns)
             if self._resend:
                 deadline = min(deadline, next_resend)
             wait_s = min(max(0.0, (deadline - self._clock()) / 1e9), 0.5)
@@ -574,6 +592,7 @@ class CameraComponent:
     def _request_message(self, cmd: _Command, msg_id: int, arg: float, last: float = 0.0) -> _Outcome:
         send: Callable[[], None]
         if msg_id == mavlink2.MAVLINK_MSG_ID_CAMERA_INFORMATION:
+            self.clients.discovered((cmd.src_system, cmd.src_component), cmd.rx_ns)
             send = self._send_camera_information
         elif msg_id == mavlink2.MAVLINK_MSG_ID_CAMERA_SETTINGS:
             send = self._send_camera_settings
@@ -585,12 +604,21 @@ class CameraComponent:
         elif msg_id == mavlink2.MAVLINK_MSG_ID_CAMERA_CAPTURE_STATUS:
             send = self._send_capture_status
         elif msg_id == mavlink2.MAVLINK_MSG_ID_CAMERA_IMAGE_CAPTURED:
-            wanted, why = image_range(arg, last, len(self.images))
-            if not wanted:
+            spans: list[range] = []
+            if cmd.command == mavlink2.MAV_CMD_REQUEST_MESSAGE and is_unspecified_image_request(arg, last):
+                # MAVSDK's form, whatever it misses (icgt.mavlink.camera_clients): what it names, and the rest
+                wanted, why = image_range(0.0, 0.0, len(self.images)) if arg == 0 else (range(0), "param2 unset")
+                spans = self.clients.take_undelivered((cmd.src_system, cmd.src_component))
+                if wanted and not any(wanted.start in r for r in spans):
+                    spans.insert(0, wanted)
+            else:
+                wanted, why = image_range(arg, last, len(self.images))
+                spans = [wanted] if wanted else []
+            if not spans:
                 return _Outcome(int(CommandResult.DENIED), reason=why)
 
             def send() -> None:
-                self._resend.append(wanted)
+                self._resend.extend(spans)
         else:
             if cmd.broadcast:
                 return _Outcome(None, reason=f"message {msg_id} not provided here")

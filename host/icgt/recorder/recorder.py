@@ -68,15 +68,15 @@ from icgt.protocol.messages import (
     Status,
     StopCapture,
 )
-from icgt.recorder import capture, topics, views
+from icgt.recorder import capture, topics
 from icgt.recorder.camera_link import CAMERA_IMAGES_SCHEMA, CameraImages, build_camera
 from icgt.recorder.config import RecorderConfig
 from icgt.recorder.device_stop import SelfStopWatch
 from icgt.recorder.resync import TakeOver, take_over
 from icgt.recorder.step_schedule import StepSchedule
 from icgt.recorder.tuning import InterpreterTuning
-from icgt.recorder.views import FoxgloveViews
-from icgt.recording import McapRecorder, RecordingError, layout
+from icgt.recording import McapRecorder, RecordingError, layout, views
+from icgt.recording.views import FoxgloveViews
 from icgt.recording.writer import McapLogHandler
 from icgt.sync import SyncConfig, Synchroniser
 from icgt.version import __version__

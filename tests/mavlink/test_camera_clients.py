@@ -36,8 +36,9 @@ def test_a_client_back_from_a_drop_gets_what_was_published_while_it_was_away() -
     assert t.due(9 * S) == []  # nothing until it is heard again
     t.heard(GCS, 10 * S)
     assert t.due(10 * S) == []  # the push waits push_delay_s
-    assert t.due(10 * S + S // 3) == [range(5, 20)]  # published from 3 s - 0.5 s on
-    assert t.due(11 * S) == [] and t.counts["client_returns"] == 1 and t.counts["images_pushed"] == 15
+    t.published(20, 10 * S + S // 10)  # live, after its return: maybe before it knew the camera again
+    assert t.due(10 * S + S // 3) == [range(5, 21)]  # published from 3 s - 0.5 s on, up to the newest
+    assert t.due(11 * S) == [] and t.counts["client_returns"] == 1 and t.counts["images_pushed"] == 16
 
 
 def test_steady_heartbeats_push_nothing() -> None:
@@ -56,11 +57,13 @@ def test_a_new_instance_holds_nothing_until_it_asks_and_a_push_is_repeated_once_
     t.heard(GCS, 9 * S)  # back after 9 s (a restart): 0..9 less the margin are pushed
     pushed = t.due(10 * S)
     assert pushed == [range(0, 10)]
+    t.published(10, 10 * S + S // 2)  # live, but to an instance that does not know the camera yet
     t.discovered(GCS, 11 * S)  # the restarted instance asks for CAMERA_INFORMATION after the push
-    assert t.due(11 * S + S // 2) == [range(0, 10)]  # the push again, now that it knows the camera
-    t.published(10, 12 * S)
+    # the push again, now that it knows the camera, with the image published in between
+    assert t.due(11 * S + S // 2) == [range(0, 11)]
+    t.published(11, 12 * S)
     assert t.take_undelivered(GCS) == []  # every image so far has been pushed to it
     t.discovered(GCS, 30 * S)  # yet another instance, no recent push: nothing is sent unasked ...
     assert t.due(31 * S) == []
-    assert t.take_undelivered(GCS) == [range(0, 11)]  # ... but everything is sent when it asks
+    assert t.take_undelivered(GCS) == [range(0, 12)]  # ... but everything is sent when it asks
     assert t.take_undelivered(GCS) == []

@@ -17,7 +17,8 @@ itself, per ground station (system id, component id), from the messages it hears
   per instance, on the camera's first HEARTBEAT; QGroundControl once per vehicle connection): it holds none
   of the images published before, and they are remembered as not delivered to it. If it came back from
   an absence and its images were pushed before it knew the camera (MAVSDK drops images of a camera it
-  has not heard yet), that push is made again ``push_delay_s`` after the discovery.
+  has not heard yet), that push, and every image published since, is made again ``push_delay_s`` after
+  the discovery.
 * **A request that cannot say what it wants** (REQUEST_MESSAGE(CAMERA_IMAGE_CAPTURED) with param2 and
   param3 both unset, 0 or NaN: MAVSDK's form): besides the image it names (0; nothing for NaN), every
   image not yet delivered to that client is sent.
@@ -148,7 +149,9 @@ class ClientTracker:
             c.undelivered.clear()
             c.undelivered.add(range(len(self._published_ns)))
             if c.pushed and not c.push and host_ns - c.pushed_ns < self.repush_window_ns:
-                c.push = c.pushed  # made before this instance knew the camera: again, now that it does
+                # made before this instance knew the camera: again, now that it does, with every image
+                # published since (those too went to an instance that did not know the camera yet)
+                c.push = range(c.pushed.start, len(self._published_ns))
                 c.push_at_ns = host_ns + self.push_delay_ns
 
     def due(self, host_ns: int) -> list[range]:
@@ -157,6 +160,9 @@ class ClientTracker:
         with self._lock:
             for c in self._clients.values():
                 if c.push and host_ns >= c.push_at_ns:
+                    # up to the newest: those published since its return went live to a client that may
+                    # not have known the camera yet (MAVSDK drops images until its Camera plugin exists)
+                    c.push = range(c.push.start, len(self._published_ns))
                     out.append(c.push)
                     c.undelivered.remove(c.push)
                     c.pushed, c.pushed_ns = c.push, host_ns

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 import time
@@ -356,6 +357,24 @@ def test_unknown_commands_targeted_unsupported_broadcast_silent(rig):
     assert rig.gcs.messages("COMMAND_ACK", since) == []
 
 
+def test_repeated_broadcast_we_do_not_implement_is_ignored_quietly(rig, caplog):
+    """MAVProxy asks for the home position with a broadcast GET_HOME_POSITION every few seconds: not the
+    camera's business. No ACK, no command record, nothing at INFO or above, one debug line in all."""
+    with caplog.at_level(logging.DEBUG, logger="icgt.mavlink.camera"):
+        since = rig.gcs.mark()
+        for target in ((0, 0), (1, 0), (0, 0), (1, 0), (0, 0)):
+            rig.command(M.MAV_CMD_GET_HOME_POSITION, target=target)
+        assert wait_until(lambda: rig.camera.counters["broadcasts_ignored"] == 5, timeout=5.0)
+        # a command we do answer, sent after them, shows they have all been handled
+        assert rig.ack(M.MAV_CMD_REQUEST_MESSAGE, rig.command(M.MAV_CMD_REQUEST_MESSAGE, 259)).result == ACCEPTED
+    acks = [a for a in rig.gcs.messages("COMMAND_ACK", since) if a.command == M.MAV_CMD_GET_HOME_POSITION]
+    assert acks == []
+    assert [r for r in rig.records if r.command == M.MAV_CMD_GET_HOME_POSITION] == []
+    mentions = [r for r in caplog.records if f"command {M.MAV_CMD_GET_HOME_POSITION} " in r.getMessage()]
+    assert len(mentions) == 1 and mentions[0].levelno == logging.DEBUG, [r.getMessage() for r in mentions]
+    assert rig.camera.counters["rejected_commands"] == 0
+
+
 def test_handler_results_map_to_acks(rig):
     rig.recorder.next_result = HandlerResult(CommandResult.DENIED, "no camera connected", progress=1, result_param2=7)
     since = rig.command(M.MAV_CMD_IMAGE_START_CAPTURE, 0, 1.0, 0)
@@ -425,6 +444,26 @@ def test_camera_image_captured_round_trip_and_re_request(rig):
     assert (nofix.lat, nofix.lon, nofix.alt) == (0, 0, 0) and all(math.isnan(c) for c in nofix.q)
     with pytest.raises(CameraError):
         rig.camera.publish_image_captured(image(4, lat_deg=91.0))
+
+
+def test_a_request_without_index_from_a_new_client_brings_every_image_it_lacks(rig):
+    """MAVSDK asks REQUEST_MESSAGE(CAMERA_IMAGE_CAPTURED) with param2 = param3 = 0 for whatever index it misses
+    (icgt.mavlink.camera_clients): a client that discovered the camera after images 0..4 gets all five, and
+    the same request afterwards only image 0 (by the protocol's letter). An explicit index stays exact."""
+    for i in range(5):
+        rig.camera.publish_image_captured(image(i))
+    since = rig.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_CAMERA_INFORMATION)
+    rig.gcs.wait_for("CAMERA_INFORMATION", since=since)
+    since = rig.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_CAMERA_IMAGE_CAPTURED, 0, 0)
+    assert rig.ack(M.MAV_CMD_REQUEST_MESSAGE, since).result == ACCEPTED
+    assert wait_until(lambda: len(rig.gcs.messages("CAMERA_IMAGE_CAPTURED", since)) >= 5, timeout=5.0)
+    assert sorted({m.image_index for m in rig.gcs.messages("CAMERA_IMAGE_CAPTURED", since)}) == [0, 1, 2, 3, 4]
+    since = rig.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_CAMERA_IMAGE_CAPTURED, 0, 0)
+    assert rig.ack(M.MAV_CMD_REQUEST_MESSAGE, since).result == ACCEPTED
+    time.sleep(0.3)
+    assert [m.image_index for m in rig.gcs.messages("CAMERA_IMAGE_CAPTURED", since)] == [0]
+    since = rig.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_CAMERA_IMAGE_CAPTURED, math.nan, math.nan)
+    assert rig.ack(M.MAV_CMD_REQUEST_MESSAGE, since).result == M.MAV_RESULT_DENIED  # nothing named, nothing lacking
 
 
 def test_count_limited_capture_returns_to_idle(rig):

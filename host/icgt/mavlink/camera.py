@@ -22,8 +22,10 @@ trusted: no answer at all, counted and logged (rate-limited). A command from a s
 ``refusal_ack_hz`` such answers per second), counted and logged (one line per ``log_period_s`` with the
 counts). These checks run on the link's reader and never queue, so a flood of refused commands does not
 delay a legitimate one. A command that finds the queue full (``command_queue``) is answered
-MAV_RESULT_TEMPORARILY_REJECTED (same rate limit) and counted. Broadcast commands we do not implement get
-no ACK (the addressed component answers); targeted ones get MAV_RESULT_UNSUPPORTED.
+MAV_RESULT_TEMPORARILY_REJECTED (same rate limit) and counted. Broadcast commands we do not implement (MAVProxy's
+GET_HOME_POSITION to component 0 every few seconds) get no ACK (the component they concern answers), no
+command record and one debug line per command for the whole run; they are counted (``broadcasts_ignored``).
+Targeted ones get MAV_RESULT_UNSUPPORTED.
 
 Duplicates: a command is executed once however often it is transmitted. A retransmission is a command
 with confirmation > 0 (the command protocol's rule), or one with the same capture sequence number
@@ -51,6 +53,7 @@ from collections import OrderedDict, deque
 from collections.abc import Callable
 from pathlib import Path
 
+from icgt.mavlink.camera_clients import ClientTracker, is_unspecified_image_request
 from icgt.mavlink.camera_commanded import ShotPairing
 from icgt.mavlink.camera_images import CameraError, CapturedImage, ImageHistory, encode_image_captured, image_range
 from icgt.mavlink.camera_types import (
@@ -195,6 +198,10 @@ class CameraComponent:
         self.images = ImageHistory()
         self._resend: deque[range] = deque()  # re-requested images still to send (worker only)
         self._resend_period_ns = int(1e9 / max(config.resend_rate_hz, 1e-3))
+        # which images each ground station may have missed (away, restarted): icgt.mavlink.camera_clients
+        self.clients = ClientTracker(gap_s=config.client_gap_s, push_delay_s=config.client_push_delay_s)
+        self._ground_stations = frozenset(config.ground_station_systems) - {ap}
+        self._hb_sub: Subscription | None = None
         # executed commands by key: (first receipt, expiry, outcome)
         self._recent: OrderedDict[tuple[object, ...], tuple[int, int, _Outcome]] = OrderedDict()
         self.pairing = ShotPairing()  # PX4 asks for one shot twice (icgt.mavlink.camera_commanded)
@@ -204,7 +211,9 @@ class CameraComponent:
         self._refusal_acks = TokenBucket(config.refusal_ack_hz, max(1, int(config.refusal_ack_hz)))
         period = config.log_period_s
         self._log_untrusted = ThrottledLog(log, "ignored commands without a valid signature", period_s=period)
-        self._log_denied = ThrottledLog(log, "denied commands from systems not allowed", period_s=period)
+        self._log_denied = ThrottledLog(
+            log, "denied commands from systems not in [mavlink] ground_station_systems", period_s=period
+        )
         self._log_overflow = ThrottledLog(log, "commands refused, camera queue full", period_s=period)
         self._counts = {
             "rejected_commands": 0,  # every command addressed to us that was not executed
@@ -214,7 +223,9 @@ class CameraComponent:
             "queue_overflows": 0,  # ... that found the queue full (ACK TEMPORARILY_REJECTED)
             "refusal_acks_sent": 0,
             "refusal_acks_suppressed": 0,  # refusals past the rate limit: counted, not answered
+            "broadcasts_ignored": 0,  # broadcast commands this camera does not implement (no ACK, not an error)
         }
+        self._ignored_seen: set[tuple[int, int]] = set()
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -222,13 +233,15 @@ class CameraComponent:
             raise CameraError("camera component already started")
         self._stop.clear()
         self._sub = self.link.subscribe(self._on_message, ("COMMAND_LONG", "COMMAND_INT"))
+        self._hb_sub = self.link.subscribe(self._on_heartbeat, ("HEARTBEAT",))
         self._thread = threading.Thread(target=self._worker, name="icgt-camera", daemon=True)
         self._thread.start()
 
     def stop(self, timeout_s: float = 2.0) -> None:
-        if self._sub is not None:
-            self.link.unsubscribe(self._sub)
-            self._sub = None
+        for sub in (self._sub, self._hb_sub):
+            if sub is not None:
+                self.link.unsubscribe(sub)
+        self._sub = self._hb_sub = None
         self._stop.set()
         with contextlib.suppress(queue.Full):
             self._queue.put_nowait(_WAKE)
@@ -260,7 +273,7 @@ class CameraComponent:
     def counters(self) -> dict[str, int]:
         """Refusals by kind (see ``_counts`` in __init__) and the images published."""
         with self._lock:
-            return {**self._counts, "images": len(self.images)}
+            return {**self._counts, **self.clients.counts, "images": len(self.images)}
 
     def set_capturing(self, capturing: bool, interval_s: float = 0.0) -> None:
         """The recorder reports a capture state change the camera did not cause (e.g. it stopped itself)."""
@@ -284,9 +297,14 @@ class CameraComponent:
         if self._status_dirty:
             self._wake()
         self.link.send(encode_image_captured(self.link.mav, indexed))
+        self.clients.published(indexed.image_index, self._clock())
         return indexed
 
     # ------------------------------------------------------------------ reader side (must not block)
+    def _on_heartbeat(self, rec: MavlinkMessage) -> None:
+        if rec.src_system in self._ground_stations:
+            self.clients.heard((rec.src_system, rec.src_component), rec.rx_ns)
+
     def _on_message(self, rec: MavlinkMessage) -> None:
         msg = rec.msg
         target_sys, target_comp = int(msg.target_system), int(msg.target_component)
@@ -303,10 +321,13 @@ class CameraComponent:
         if rec.src_system not in self._allowed:
             reason = (
                 f"command {command} from system {rec.src_system} (component {rec.src_component}): not an allowed "
-                f"ground station {sorted(self.config.ground_station_systems)} or the autopilot"
+                f"ground station {sorted(self.config.ground_station_systems)} or the autopilot; add "
+                f"{rec.src_system} to [mavlink] ground_station_systems to let it command the camera"
             )
             self._refused(rec, command, "denied_systems", reason, self._log_denied, CommandResult.DENIED)
             return
+        if rec.src_system in self._ground_stations:
+            self.clients.heard((rec.src_system, rec.src_component), rec.rx_ns)
         params, confirmation = _command_params(rec)
         item = _Command(rec.rx_ns, rec.src_system, rec.src_component, command, confirmation, params, target_comp == 0)
         try:
@@ -370,10 +391,14 @@ class CameraComponent:
                 log.exception("camera periodic message failed")
             for throttled in (self._log_untrusted, self._log_denied, self._log_overflow):
                 throttled.tick(now)
+            self._resend.extend(self.clients.due(now))
             if self._resend and now >= next_resend:
                 self._resend_one()
                 next_resend = now + self._resend_period_ns
             deadline = min(next_hb, next_status)
+            push_ns = self.clients.next_due_ns()
+            if push_ns is not None:
+                deadline = min(deadline, push_ns)
             if self._resend:
                 deadline = min(deadline, next_resend)
             wait_s = min(max(0.0, (deadline - self._clock()) / 1e9), 0.5)
@@ -431,6 +456,9 @@ class CameraComponent:
             outcome.after()
         if self._status_dirty:
             self._send_capture_status()
+        if outcome.result is None:
+            self._ignored_broadcast(cmd, outcome)
+            return
         log.info(
             "command %d from %d:%d params %s -> %s%s %s",
             cmd.command,
@@ -456,6 +484,24 @@ class CameraComponent:
                 self._on_command(record_)
             except Exception:
                 log.exception("on_command callback raised")
+
+    def _ignored_broadcast(self, cmd: _Command, outcome: _Outcome) -> None:
+        """A broadcast command (or message request) this camera does not implement: not ours to answer (the
+        command protocol: only the component it concerns ACKs a broadcast), so no ACK, no record and no log
+        line but one debug line per command (and requested message) for the whole run; counted."""
+        key = (cmd.command, int(cmd.params[0]) if cmd.command == mavlink2.MAV_CMD_REQUEST_MESSAGE else 0)
+        with self._lock:
+            self._counts["broadcasts_ignored"] += 1
+            first = key not in self._ignored_seen
+            self._ignored_seen.add(key)
+        if first:
+            log.debug(
+                "broadcast command %d from %d:%d ignored (%s); further ones silently",
+                cmd.command,
+                cmd.src_system,
+                cmd.src_component,
+                outcome.reason,
+            )
 
     def _dedupe_keys(self, cmd: _Command) -> tuple[list[tuple[object, ...]], list[tuple[object, ...]]]:
         """(keys that make this command a duplicate, keys to remember it by once executed)."""
@@ -552,6 +598,7 @@ class CameraComponent:
     def _request_message(self, cmd: _Command, msg_id: int, arg: float, last: float = 0.0) -> _Outcome:
         send: Callable[[], None]
         if msg_id == mavlink2.MAVLINK_MSG_ID_CAMERA_INFORMATION:
+            self.clients.discovered((cmd.src_system, cmd.src_component), cmd.rx_ns)
             send = self._send_camera_information
         elif msg_id == mavlink2.MAVLINK_MSG_ID_CAMERA_SETTINGS:
             send = self._send_camera_settings
@@ -563,12 +610,21 @@ class CameraComponent:
         elif msg_id == mavlink2.MAVLINK_MSG_ID_CAMERA_CAPTURE_STATUS:
             send = self._send_capture_status
         elif msg_id == mavlink2.MAVLINK_MSG_ID_CAMERA_IMAGE_CAPTURED:
-            wanted, why = image_range(arg, last, len(self.images))
-            if not wanted:
+            spans: list[range] = []
+            if cmd.command == mavlink2.MAV_CMD_REQUEST_MESSAGE and is_unspecified_image_request(arg, last):
+                # MAVSDK's form, whatever it misses (icgt.mavlink.camera_clients): what it names, and the rest
+                wanted, why = image_range(0.0, 0.0, len(self.images)) if arg == 0 else (range(0), "param2 unset")
+                spans = self.clients.take_undelivered((cmd.src_system, cmd.src_component))
+                if wanted and not any(wanted.start in r for r in spans):
+                    spans.insert(0, wanted)
+            else:
+                wanted, why = image_range(arg, last, len(self.images))
+                spans = [wanted] if wanted else []
+            if not spans:
                 return _Outcome(int(CommandResult.DENIED), reason=why)
 
             def send() -> None:
-                self._resend.append(wanted)
+                self._resend.extend(spans)
         else:
             if cmd.broadcast:
                 return _Outcome(None, reason=f"message {msg_id} not provided here")

@@ -102,6 +102,8 @@ class CameraConfig:
     refusal_ack_hz: float = 5.0  # DENIED / TEMPORARILY_REJECTED answers to refused commands, at most
     log_period_s: float = 5.0  # one log line per kind of refusal per period, with counts
     resend_rate_hz: float = 100.0  # re-requested CAMERA_IMAGE_CAPTURED messages per second, at most
+    client_gap_s: float = 2.5  # a ground station not heard this long was away (icgt.mavlink.camera_clients)
+    client_push_delay_s: float = 0.3  # the images it missed are sent again this long after it is back
 
 
 @dataclasses.dataclass(frozen=True, slots=True)

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from icgt.errors import IcgtError
-from icgt.sim.recorder_setup import free_udp_port, recorder_config_text
+from icgt.sim.recorder_setup import GROUND_STATIONS, free_udp_port, recorder_config_text
 from icgt.sim.scenario import Scenario
 from icgt.sim.session import SessionUrls, SimSession
 
@@ -32,7 +32,7 @@ class LiveRecorder:
         scenario: Scenario,
         out_dir: Path,
         *,
-        ground_stations: tuple[int, ...] = (255, 245),
+        ground_stations: tuple[int, ...] = GROUND_STATIONS,
         signing_key_file: Path | None = None,
     ) -> None:
         self.scenario = scenario

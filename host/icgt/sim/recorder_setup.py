@@ -9,12 +9,17 @@ from __future__ import annotations
 import socket
 from pathlib import Path
 
+from icgt.mavlink.camera_types import DEFAULT_GROUND_STATIONS
 from icgt.sim.scenario import Camera, Scenario
 
-__all__ = ["GCS_SYSTEM", "feedback_min_lag_s", "free_udp_port", "recorder_config_text"]
+__all__ = ["GCS_SYSTEM", "GROUND_STATIONS", "feedback_min_lag_s", "free_udp_port", "recorder_config_text"]
 
 GCS_SYSTEM = 255
 """The ground station's MAVLink system id in the simulated flights (the recorder accepts its commands)."""
+
+GROUND_STATIONS = tuple(sorted(DEFAULT_GROUND_STATIONS, reverse=True))
+"""What the written configuration allows: every ground station on its default ids (255 QGroundControl,
+Mission Planner, MAVProxy; 245 MAVSDK), as the recorder's own default does."""
 
 
 def free_udp_port() -> int:
@@ -33,7 +38,7 @@ def recorder_config_text(
     sc: Scenario,
     out_dir: Path,
     *,
-    ground_stations: tuple[int, ...] = (GCS_SYSTEM,),
+    ground_stations: tuple[int, ...] = GROUND_STATIONS,
     signing_key_file: Path | None = None,
     host_timeout_s: float | None = None,
 ) -> str:

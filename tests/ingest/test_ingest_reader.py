@@ -190,8 +190,14 @@ def test_unfinished_recording_says_how_to_recover_and_can_be_read_as_far_as_it_g
 def test_damaged_chunk_gives_an_error_not_a_traceback(flight: Flight, tmp_path: Path) -> None:
     bad = tmp_path / "bad.mcap"
     data = bytearray(flight.mcap.read_bytes())
-    middle = len(data) // 2
-    data[middle : middle + 64] = bytes(64)  # inside a compressed chunk; footer and summary intact
+    with flight.mcap.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.chunk_indexes
+    # the middle of the largest chunk's compressed records (the middle of the file need not be in a chunk);
+    # footer and summary intact
+    chunk = max(summary.chunk_indexes, key=lambda c: c.chunk_length)
+    middle = chunk.chunk_start_offset + chunk.chunk_length // 2
+    data[middle : middle + 64] = bytes(64)
     bad.write_bytes(bytes(data))
     rec = read(bad)
     with pytest.raises(IngestError, match=r"damaged recording .*icgt recover"):

@@ -23,6 +23,7 @@ import threading
 from typing import Any
 
 from icgt.errors import IcgtError
+from icgt.mavlink.sample_codec import SampleCodec
 
 __all__ = [
     "CameraError",
@@ -133,14 +134,21 @@ class ImageHistory:
     """Every image published in this recording, by index. Thread-safe."""
 
     def __init__(self) -> None:
-        self._images: list[CapturedImage] = []
+        # Held packed (`SampleCodec`, IMAGE_BYTES each instead of about 490 as objects): the history grows with
+        # the recording (a ground station may re-request any image), 300 images a minute at 5 fps. An image
+        # whose file_url would overflow the codec's string table is kept as the object.
+        self._images: list[bytes | CapturedImage] = []
+        self._codec = SampleCodec(CapturedImage)
         self._lock = threading.Lock()
 
     def append(self, image: CapturedImage) -> CapturedImage:
         """Give ``image`` the next index, keep it and return it with its index."""
         with self._lock:
             indexed = dataclasses.replace(image, image_index=len(self._images))
-            self._images.append(indexed)
+            try:
+                self._images.append(self._codec.encode(indexed))
+            except ValueError:
+                self._images.append(indexed)
             return indexed
 
     def __len__(self) -> int:
@@ -149,4 +157,5 @@ class ImageHistory:
 
     def get(self, index: int) -> CapturedImage | None:
         with self._lock:
-            return self._images[index] if 0 <= index < len(self._images) else None
+            item = self._images[index] if 0 <= index < len(self._images) else None
+        return self._codec.decode(item) if isinstance(item, bytes) else item

@@ -422,7 +422,10 @@ class TelemetryBuffer(Generic[S]):
         if excess > 0:
             self._head += excess
             self.expired += excess
-        if self._head >= max(64, self.capacity // 4):
+        # Deleted in batches of a quarter of what is kept (amortised O(1) per push), not of the capacity:
+        # a stream slower than MAX_STREAM_RATE_HZ never fills a quarter of it (GPS at 10 Hz would hold 31 min
+        # beyond its 12 min retention, SYSTEM_TIME at 2 Hz hours; issue 30's soak).
+        if self._head >= max(64, (len(self._keys) - self._head) // 4):
             del self._keys[: self._head]
             del self._items[: self._head]
             self._head = 0

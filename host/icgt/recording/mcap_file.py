@@ -140,7 +140,10 @@ class McapFileWriter:
         self._data_crc = 0
         self._schemas: dict[int, Schema] = {}
         self._channels: dict[int, Channel] = {}
-        self._chunk_indexes: list[ChunkIndex] = []
+        # The summary's ChunkIndex records, encoded as they are made (about 200 B a chunk instead of 1.3 kB as
+        # objects): the index grows with the recording, a chunk every chunk_interval_s (issue 30's soak).
+        self._chunk_index_records = bytearray()
+        self._chunk_count = 0
         self._metadata_indexes: list[MetadataIndex] = []
         self._attachment_indexes: list[AttachmentIndex] = []
         self._channel_counts: dict[int, int] = {}
@@ -160,7 +163,7 @@ class McapFileWriter:
 
     @property
     def chunk_count(self) -> int:
-        return len(self._chunk_indexes)
+        return self._chunk_count
 
     def add_message_record(self, channel_id: int, log_time_ns: int, record: bytes) -> bool:
         """Appends a record made by `message_record` to the open chunk; True when the chunk is full."""
@@ -269,7 +272,7 @@ class McapFileWriter:
             offsets[channel_id] = start + len(chunk_record) + len(indexes)
             indexes += _encode(MessageIndex(channel_id=channel_id, records=entries))
         self._commit(chunk_record + indexes)
-        self._chunk_indexes.append(
+        self._chunk_index_records += _encode(
             ChunkIndex(
                 message_start_time=chunk.start_ns,
                 message_end_time=chunk.end_ns,
@@ -282,6 +285,7 @@ class McapFileWriter:
                 uncompressed_size=len(raw),
             )
         )
+        self._chunk_count += 1
         for channel_id, entries in chunk.index.items():
             self._channel_counts[channel_id] = self._channel_counts.get(channel_id, 0) + len(entries)
         self.message_count += chunk.messages
@@ -313,7 +317,7 @@ class McapFileWriter:
             channel_count=len(self._channels),
             attachment_count=len(self._attachment_indexes),
             metadata_count=len(self._metadata_indexes),
-            chunk_count=len(self._chunk_indexes),
+            chunk_count=self._chunk_count,
             message_start_time=self.first_log_time_ns or 0,
             message_end_time=self.last_log_time_ns or 0,
             channel_message_counts=dict(self._channel_counts),
@@ -329,7 +333,7 @@ class McapFileWriter:
             (Opcode.SCHEMA, _encode(*self._schemas.values())),
             (Opcode.CHANNEL, _encode(*self._channels.values())),
             (Opcode.STATISTICS, _encode(self._statistics())),
-            (Opcode.CHUNK_INDEX, _encode(*self._chunk_indexes)),
+            (Opcode.CHUNK_INDEX, bytes(self._chunk_index_records)),
             (Opcode.ATTACHMENT_INDEX, _encode(*self._attachment_indexes)),
             (Opcode.METADATA_INDEX, _encode(*self._metadata_indexes)),
         ]

@@ -422,7 +422,7 @@ def test_the_export_derives_the_views_for_a_recording_that_lacks_them(run: Run, 
 
     from icgt.export.foxglove_mcap import FOXGLOVE_FILE, write_foxglove_mcap
     from icgt.ingest.recompute import recording_sync_config
-    from icgt.recorder.views import TOPICS
+    from icgt.recording.views import TOPICS
 
     old = tmp_path / "old.mcap"
     with run.flight.mcap.open("rb") as src, old.open("wb") as dst:

@@ -29,7 +29,9 @@ SCENARIO = Path(__file__).with_name("short_flight.toml")
 
 def test_kill_9_mid_recording_loses_at_most_one_second(tmp_path: Path) -> None:
     sc = load_scenario(SCENARIO)
-    session = SimSession(sc, tmp_path / "sim", mavlink_port=free_udp_port(), gcs_port=free_udp_port())
+    # Held until the recorder is up, so that the kill comes before the scenario's unplug at 8 s however long
+    # a loaded machine takes to start it.
+    session = SimSession(sc, tmp_path / "sim", mavlink_port=free_udp_port(), gcs_port=free_udp_port(), hold=True)
     urls = session.start()
     rec_dir = tmp_path / "recording"
     config = tmp_path / "recorder.toml"
@@ -45,6 +47,8 @@ def test_kill_9_mid_recording_loses_at_most_one_second(tmp_path: Path) -> None:
         deadline = time.monotonic() + 15
         while not sock.exists() and time.monotonic() < deadline:
             time.sleep(0.1)
+        session.release()
+        session.wait_until(1.0)
         request(sock, {"command": "start"})
         time.sleep(5.3)  # mid-chunk, at a time unrelated to the 1 s chunk grid
         killed_at_ns = time.time_ns()

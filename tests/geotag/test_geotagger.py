@@ -841,3 +841,48 @@ def test_a_frame_whose_telemetry_left_the_buffers_says_so() -> None:
     valid_range_at_mid(live)
     live.expose()
     assert "telemetry_expired" not in live.one().flags
+
+
+@pytest.mark.parametrize("stabilised", [False, True])
+@pytest.mark.parametrize("kind", ["pier_scan", "hover"])
+def test_the_simulator_and_the_geotagger_agree_on_the_camera_frame(kind, stabilised):
+    """One convention across the code: the simulator's true camera (its board FRD frame, x along the optical
+    axis, and its own lever arm sum) and what the geotagger makes of the same body pose agree (to 1e-6:
+    ATTITUDE_QUATERNION carries float32).
+
+    The simulator turns its camera by the mounting angles alone and looks along x; the geotagger's camera
+    frame is the optical one (x right, y down, z forward): its z axis must be the simulator's x axis, its
+    position the simulator's camera position."""
+    import tomllib
+    from pathlib import Path
+
+    from icgt.sim.scenario import parse_scenario
+    from icgt.sim.trajectory import Trajectory
+
+    data = tomllib.loads((Path(__file__).parents[1] / "e2e" / "short_flight.toml").read_text())
+    data["trajectory"] = {"kind": kind, "sway_m": 0.4, "sway_period_s": 3.0}
+    mount = {"mount_roll_deg": 7.0, "mount_pitch_deg": -35.0, "mount_yaw_deg": 25.0}
+    data.setdefault("camera", {}).update(stabilised=stabilised, lever_arm_m=[0.21, -0.08, 0.12], **mount)
+    scenario = parse_scenario(data)
+    st = Trajectory(scenario).state(np.linspace(2.0, 12.0, 7))
+    frame = LocalFrame(*ORIGIN)
+    config = GeotagConfig(
+        origin=ORIGIN, lever_arm_body_m=tuple(scenario.camera.lever_arm_m), gimbal_stabilised=stabilised, **mount
+    )
+    for i in range(st.tau_s.size):
+        rig = Rig(config)
+        q_body = tuple(float(c) for c in st.q_body_ned[i])
+        rig.gps(12_990)
+        rig.pose(13_000, q_body)
+        rig.pose(13_100, q_body)
+        rig.expose()
+        f = rig.one()
+        right, down, axis = cam_axes(f)
+        q_board = st.q_camera_ned[i]  # the simulator's camera: FRD, x forward along the optical axis
+        np.testing.assert_allclose(axis, rotate(q_board, (1, 0, 0)), atol=1e-6)
+        np.testing.assert_allclose(right, rotate(q_board, (0, 1, 0)), atol=1e-6)
+        np.testing.assert_allclose(down, rotate(q_board, (0, 0, 1)), atol=1e-6)
+        lever_truth = st.camera_position_enu_m[i] - st.position_enu_m[i]
+        np.testing.assert_allclose(enu(f) - np.array(frame.geodetic_to_enu(*ORIGIN)), lever_truth, atol=1e-6)
+        sim_axis_enu = st.optical_axis_enu[i]
+        np.testing.assert_allclose([axis[1], axis[0], -axis[2]], sim_axis_enu, atol=1e-6)

@@ -45,7 +45,14 @@ def read_exposures(path: Path) -> list[ExposureTruth]:
         if line.strip():
             d = json.loads(line)
             d.pop("event")
-            for k in ("position_enu_m", "body_position_enu_m", "q_camera_ned", "q_body_ned", "omega_camera_rad_s"):
+            for k in (
+                "position_enu_m",
+                "body_position_enu_m",
+                "q_camera_ned",
+                "q_optical_ned",
+                "q_body_ned",
+                "omega_camera_rad_s",
+            ):
                 d[k] = tuple(d[k])
             out.append(ExposureTruth(**d))
     return out

@@ -74,3 +74,20 @@ def test_a_pending_frame_is_retried_soon_a_few_times_then_at_the_base_period() -
 def test_settings_out_of_range_are_refused(kwargs: dict[str, float]) -> None:
     with pytest.raises(ValueError):
         StepTiming(**kwargs)  # type: ignore[arg-type]
+
+
+def test_a_capture_started_at_an_interval_steps_for_its_first_two_frames_at_once() -> None:
+    s = StepSchedule(StepTiming(period_s=0.1, retry_s=0.01, ready_after_s=0.03, first_frame_s=0.5))
+    s.on_frame(500 * MS)
+    s.on_frame(700 * MS)  # an earlier capture's cadence and phase
+    s.expect_interval(1_000 * MS, now_ns=900 * MS)  # a new capture at 1 fps, commanded at 900 ms
+    assert s.interval_ns == 1_000 * MS
+    # its first frame comes after the camera's shutter lag: stepped for at the retry period meanwhile
+    assert s.next_step_ns(900 * MS, pending_frames=0) == 910 * MS
+    assert s.next_step_ns(1_390 * MS, pending_frames=0) == 1_400 * MS
+    assert s.next_step_ns(1_400 * MS, pending_frames=0) == 1_500 * MS  # first_frame_s over: the base period
+    s.on_frame(1_234 * MS)
+    assert s.next_step_ns(1_264 * MS, pending_frames=0) == 1_364 * MS  # the frame came: no more eager steps
+    assert s.next_step_ns(2_200 * MS, pending_frames=0) == 2_264 * MS  # the second frame's due time
+    s.expect_interval(10_000 * MS, now_ns=3_000 * MS)  # slower than the cadence rule allows: single shots
+    assert s.interval_ns is None

@@ -139,6 +139,27 @@ def test_a_link_that_holds_the_stream_back_is_still_the_autopilot() -> None:
     assert len(sync.telemetry.fused.samples()) == 300
 
 
+def test_an_answer_on_time_while_the_first_seconds_of_telemetry_wait_is_still_the_autopilot() -> None:
+    """At start-up the autopilot's telemetry reaches the host 0.8 s late for 3 s (its sender busy, a host starting
+    up; seen in the simulator under full CPU load) while its TIMESYNC answer comes on time: that answer's boot
+    clock puts the origin 0.8 s earlier than the telemetry so far did. Believed, with the telemetry after it (it
+    used to be refused as a second sender, and with it the TIMESYNC answers)."""
+    sender = Sender()
+    frames: list[tuple[int, bytes]] = []
+    last_rx = 0
+    for rx, frame in sender.stream(0, 30_000):
+        late = 800 * MS if rx < BOOT_HOST_NS + 3 * S else 0
+        last_rx = max(rx + late, last_rx + 10_000)  # in order on the telemetry's way
+        frames.append((last_rx, frame))
+        if rx == BOOT_HOST_NS + 1_500 * MS + DELAY_NS:  # generated after the 1.5 s position: its sequence number
+            answer = sender._frame(sender.mav.timesync_encode(1_500 * MS, 123))
+            frames.append((rx + MS, answer))
+    sync = Synchroniser()
+    feed(sync, frames)
+    assert sync.counters()["autopilot_second_sender_messages"] == 0
+    assert len(sync.telemetry.fused.samples()) == 300
+
+
 def test_flight_stacks_booted_2_s_before_or_after_the_autopilot_are_second_senders() -> None:
     """Another flight stack on the network with the autopilot's id, booted 2 s earlier (its boot clock ahead: its
     origin earlier than any message of the autopilot can be) or 2 s later (its clock behind the autopilot's)."""

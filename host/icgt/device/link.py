@@ -418,6 +418,8 @@ class DeviceLink:
                     # arrived no later than this (a stamp taken after the first byte could precede it).
                     host_rx_ns = time.monotonic_ns()
                 except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+                    if self._stop.is_set():
+                        break  # stop() cancelled or closed the port under the read: not an outage
                     self._link_down(str(exc))
                     continue
                 self._took(data, host_rx_ns)
@@ -521,7 +523,11 @@ class DeviceLink:
             if not chunk:  # readable but empty: the device went away (as pyserial reports it)
                 if is_socket:
                     raise serial.SerialException("the device closed the connection")
-                raise serial.SerialException("device reports readiness to read but returned no data")
+                # pyserial's words for it ("device reports readiness to read but returned no data") name
+                # no cause; this is end of file on the port
+                raise serial.SerialException(
+                    "the serial port gave end of file (the device was unplugged, powered off or its program ended)"
+                )
             return chunk
         data: bytes = port.read(1)
         waiting = port.in_waiting

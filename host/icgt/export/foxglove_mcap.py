@@ -11,7 +11,7 @@ attachment of the recording, as recorded, plus for every frame paired with an im
 
 A recording made before the recorder wrote the Foxglove views (no ``/vehicle/location``) gets them
 here, derived from its raw telemetry, device log and frames by the recorder's own
-`icgt.recorder.views` (its old per-frame ``/frames/location``, ``/frames/pose`` and ``/tf`` are
+`icgt.recording.views` (its old per-frame ``/frames/location``, ``/frames/pose`` and ``/tf`` are
 replaced by theirs); each derived message is logged at its source message's log time.
 
 The images are placed on the timeline with their frame: log time = the /frames message's log time, publish
@@ -68,7 +68,7 @@ def scaled_jpeg(path: Path, max_side_px: int) -> tuple[bytes, int, int]:
 def _image_messages(frame_publish_ns: int, path: Path, camera: Any, max_side_px: int) -> tuple[Any, Any]:
     from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 
-    from icgt.recorder.views import camera_calibration
+    from icgt.recording.views import camera_calibration
 
     data, w, h = scaled_jpeg(path, max_side_px)
     image = CompressedImage(frame_id=layout.CAMERA_FRAME, format="jpeg", data=data)
@@ -88,7 +88,7 @@ class _Views:
     def __init__(self, recording: Any, camera: Any, vehicle_system: int) -> None:
         from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-        from icgt.recorder.views import TOPICS, FoxgloveViews
+        from icgt.recording.views import TOPICS, FoxgloveViews
 
         self.topics = TOPICS
         offset = recording.monotonic_to_utc_offset_ns or 0

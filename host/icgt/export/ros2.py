@@ -48,7 +48,7 @@ import heapq
 import logging
 import math
 import shutil
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -59,8 +59,9 @@ from icgt.errors import IcgtError
 from icgt.export import ExportError
 from icgt.export.common import position_sigma_m
 from icgt.export.ros2_msgs import MSG_TYPE, frame_record_fields, shipped_msg_text
-from icgt.geodesy import Q_NED_TO_ENU, LocalFrame, q_conjugate, q_multiply, q_rotate
+from icgt.geodesy import LocalFrame, q_multiply
 from icgt.geotag.record import FrameRecord
+from icgt.pose import Q_FRD_TO_FLU, camera_to_body_quaternion, frame_tree, frd_to_flu, q_flu_to_enu
 from icgt.recording import layout
 
 log = logging.getLogger(__name__)
@@ -79,7 +80,6 @@ _RANGE_MAX_M = 40.0
 _RANGE_FOV_RAD = 0.008
 _RANGE_VALID_BIT = 1 << 0  # protocol RangeFlags.valid
 
-_Q_FRD_TO_FLU = np.array([0.0, 1.0, 0.0, 0.0])  # 180 deg about x: FRD and FLU axes (its own inverse)
 
 # device LOG level (protocol LogLevel) and Python/foxglove level names -> rcl_interfaces/Log levels
 _DEVICE_LEVEL = {1: 10, 2: 20, 3: 30, 4: 40, 5: 50}
@@ -117,15 +117,6 @@ def _stamp(ns: int) -> Any:
 
 
 _Time: Any = None  # builtin_interfaces/msg/Time, set by _types()
-
-
-def _frd_to_flu(v: Sequence[float]) -> tuple[float, float, float]:
-    return (float(v[0]), -float(v[1]), -float(v[2]))
-
-
-def q_flu_to_enu(q_frd_to_ned: Any) -> np.ndarray[Any, Any]:
-    """A body FRD -> NED quaternion as the body FLU -> ENU quaternion of the same attitude (REP-103)."""
-    return np.asarray(q_multiply(q_multiply(Q_NED_TO_ENU, q_frd_to_ned), _Q_FRD_TO_FLU))
 
 
 def _vector(data: dict[str, Any], pattern: str) -> tuple[float, float, float]:
@@ -182,7 +173,6 @@ class _Converter:
     """Turns the recording's messages into ROS 2 messages on the bag."""
 
     def __init__(self, bag: _Bag, recording: Any) -> None:
-        from icgt.geotag.geotagger import camera_to_body_quaternion
         from icgt.ingest.recompute import recording_config
 
         self.bag = bag
@@ -204,8 +194,8 @@ class _Converter:
 
     # --- static ------------------------------------------------------------------------------
     def static_mount(self, ns: int) -> None:
-        q = q_multiply(_Q_FRD_TO_FLU, self.q_cam_to_body)  # camera_mount (optical axes) -> base_link FLU
-        tf = self.bag.tf(ns, BASE, MOUNT, _frd_to_flu(self.lever_frd), q)
+        q = q_multiply(Q_FRD_TO_FLU, self.q_cam_to_body)  # camera_mount (optical axes) -> base_link FLU
+        tf = self.bag.tf(ns, BASE, MOUNT, frd_to_flu(self.lever_frd), q)
         self.bag.add("/tf_static", ns, self.bag.t["tf2_msgs/msg/TFMessage"](transforms=[tf]))
 
     # --- per source topic ---------------------------------------------------------------------
@@ -305,13 +295,8 @@ class _Converter:
         cam = (rec.cam_qw, rec.cam_qx, rec.cam_qy, rec.cam_qz)
         if not (_finite(*body) and _finite(*cam) and _finite(rec.east_m, rec.north_m, rec.up_m)):
             return
-        q_body = np.asarray(body, dtype=float)
-        q_cam = np.asarray(cam, dtype=float)
         cam_enu = np.array([rec.east_m, rec.north_m, rec.up_m], dtype=float)
-        q_base = q_flu_to_enu(q_body)
-        base_enu = cam_enu - q_rotate(q_base, _frd_to_flu(self.lever_frd))
-        nominal = q_multiply(q_body, self.q_cam_to_body)  # camera -> NED as mounted
-        residual = q_multiply(q_conjugate(nominal), q_cam)  # what a gimbal turned it by (identity without)
+        base_enu, q_base, residual = frame_tree(cam_enu, body, cam, self.q_cam_to_body, self.lever_frd)
         transforms = [
             self.bag.tf(stamp, WORLD, BASE, base_enu, q_base),
             self.bag.tf(stamp, MOUNT, CAMERA, (0.0, 0.0, 0.0), residual),
@@ -321,8 +306,8 @@ class _Converter:
     def _imu(self, ns: int, data: dict[str, Any]) -> None:
         t = self.bag.t
         q = np.array([float(data.get(f"quat_{a}", math.nan)) for a in "wxyz"])
-        gyro = _frd_to_flu(_vector(data, "gyro_{}_rad_s"))
-        accel = _frd_to_flu(_vector(data, "accel_{}_m_s2"))
+        gyro = frd_to_flu(_vector(data, "gyro_{}_rad_s"))
+        accel = frd_to_flu(_vector(data, "accel_{}_m_s2"))
         orientation_cov = np.zeros(9)
         if np.all(np.isfinite(q)) and np.linalg.norm(q) > 0.5:
             q_enu = q_flu_to_enu(q / np.linalg.norm(q))

@@ -8,7 +8,6 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -17,16 +16,10 @@ from icgt.errors import IcgtError
 from icgt.geodesy import (
     FloatArray,
     q_from_euler_zyx,
-    q_multiply,
     q_to_matrix,
 )
 from icgt.geotag.geotagger import GeotagConfig
-
-# NED components -> ENU components
-_NED_TO_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
-# optical camera axes (x right, y down, z forward) -> camera "body" axes (x forward, y right, z down):
-# 120 deg about (1, 1, 1), the geotagger's base alignment
-_Q_OPTICAL_TO_FRD = np.array([0.5, 0.5, 0.5, 0.5])
+from icgt.pose import frd_rotation_in_optical_axes
 
 
 class GeometryError(IcgtError):
@@ -106,12 +99,6 @@ class CameraModel:
             cfg.focal_length_mm, cfg.sensor_width_mm, cfg.image_width_px, cfg.image_height_px, source="GeotagConfig"
         )
 
-    @classmethod
-    def load(cls, path: str | Path) -> CameraModel:
-        from icgt.geometry.calibration import load_calibration  # here: calibration.py imports this module
-
-        return load_calibration(path)
-
     # --- properties
     @property
     def has_distortion(self) -> bool:
@@ -133,9 +120,7 @@ class CameraModel:
         if r == p == y == 0.0:
             return np.eye(3)
         # gimbal angles act on the camera's FRD axes; conjugate them into the optical axes
-        q_frd = q_from_euler_zyx(r, p, y)
-        q = q_multiply(q_multiply(_conj(_Q_OPTICAL_TO_FRD), q_frd), _Q_OPTICAL_TO_FRD)
-        return q_to_matrix(q)
+        return q_to_matrix(frd_rotation_in_optical_axes(q_from_euler_zyx(r, p, y)))
 
     # --- lens
     def distort(self, x: FloatArray, y: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -221,7 +206,3 @@ class CameraModel:
                 f = k / (n + 1)
                 out.append((a[0] + (b[0] - a[0]) * f, a[1] + (b[1] - a[1]) * f))
         return np.asarray(out, dtype=np.float64)
-
-
-def _conj(q: FloatArray) -> FloatArray:
-    return np.array([q[0], -q[1], -q[2], -q[3]])

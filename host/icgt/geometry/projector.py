@@ -17,20 +17,15 @@ from icgt.geodesy import (
     LocalFrame,
     ecef_to_geodetic,
     geodetic_to_ecef,
+    q_conjugate,
     q_multiply,
     q_to_euler_zyx,
     q_to_matrix,
 )
-from icgt.geometry.camera import (
-    _NED_TO_ENU,
-    _Q_OPTICAL_TO_FRD,
-    CameraModel,
-    GeometryError,
-    SurfaceSource,
-    _conj,
-)
+from icgt.geometry.camera import CameraModel, GeometryError, SurfaceSource
 from icgt.geometry.planes import Plane, plane_axes
 from icgt.geotag.record import FrameRecord
+from icgt.pose import Q_OPTICAL_TO_FRD, R_NED_TO_ENU
 
 # --- per-frame geometry ---------------------------------------------------------------------
 
@@ -123,7 +118,7 @@ def _has_attitude(rec: FrameRecord) -> bool:
 def _camera_angles(q_cam_ned: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Vectorised camera_angles_deg for camera->NED quaternions (N, 4): (yaw, pitch, roll) [deg]."""
     q = q_cam_ned / np.linalg.norm(q_cam_ned, axis=-1, keepdims=True)
-    r, p, y = q_to_euler_zyx(q_multiply(q, _conj(_Q_OPTICAL_TO_FRD)))
+    r, p, y = q_to_euler_zyx(q_multiply(q, q_conjugate(Q_OPTICAL_TO_FRD)))
     return np.degrees(y) % 360.0, np.degrees(p), np.degrees(r)
 
 
@@ -223,7 +218,7 @@ class Projector:
                 geo[i] = (rec.lat_deg, rec.lon_deg, rec.alt_msl_m)
         ok = np.array([r is None for r in reasons], dtype=bool)
         qn = q / np.linalg.norm(q, axis=-1, keepdims=True)
-        r_recorded = _NED_TO_ENU @ q_to_matrix(qn)  # (N, 3, 3) recorded camera axes -> ENU
+        r_recorded = R_NED_TO_ENU @ q_to_matrix(qn)  # (N, 3, 3) recorded camera axes -> ENU
         c = c + r_recorded @ self._lever
         r = r_recorded @ self._r_boresight  # real camera axes -> ENU
         axis = r[:, :, 2]  # optical axis in ENU

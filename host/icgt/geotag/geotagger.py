@@ -10,7 +10,6 @@ sample and flagged, so nothing is ever dropped.
 from __future__ import annotations
 
 import math
-import threading
 from bisect import bisect_left, bisect_right
 from collections import deque
 from collections.abc import Callable
@@ -21,16 +20,18 @@ import numpy as np
 from msgspec import Meta
 
 from icgt.errors import IcgtError
-from icgt.geodesy import LocalFrame, q_from_euler_zyx, q_multiply, q_rotate, q_slerp, q_to_euler_zyx
+from icgt.geodesy import LocalFrame, q_slerp
+from icgt.geotag import parts
 from icgt.geotag.bounds import MotionAllowance
 from icgt.geotag.position import PoseGap, PositionEstimate, PositionRules, estimate_position
-from icgt.geotag.record import FrameFlag, FrameRecord, PositionSource, SensorSource
+from icgt.geotag.record import FrameFlag, FrameRecord, SensorSource
 from icgt.geotag.snapshot import SNAPSHOT_AGE_SATURATED_US, ImuAtMid, snapshot_imu, snapshot_range_valid
 from icgt.mavlink.telemetry import (
     AttitudeSample,
     TelemetryBuffer,
     TelemetryStore,
 )
+from icgt.pose import CameraFields, CameraMounting, camera_fields
 from icgt.protocol.messages import Exposure, ExposureFlags, Imu, Range, RangeFlags
 
 GPS_FIX_3D = 3
@@ -133,35 +134,6 @@ class GeotagConfig:
         return self.focal_length_mm / self.pixel_pitch_mm
 
 
-# Camera frame: x right, y down, z forward (optical axis). Body frame FRD. The base alignment
-# makes the camera look along the body's x axis; the mounting angles rotate it from there.
-_Q_CAM_TO_BODY_BASE = np.array([0.5, 0.5, 0.5, 0.5])
-
-
-def camera_to_body_quaternion(cfg: GeotagConfig) -> np.ndarray:
-    """Rotation camera -> body (Hamilton, w first)."""
-    mount = q_from_euler_zyx(
-        math.radians(cfg.mount_roll_deg), math.radians(cfg.mount_pitch_deg), math.radians(cfg.mount_yaw_deg)
-    )
-    return np.asarray(q_multiply(mount, _Q_CAM_TO_BODY_BASE))
-
-
-def _source_of(pos: PositionEstimate | None) -> PositionSource:
-    """The frame's position source, named as it is: GPS (by its fix), the local position, or dead reckoning."""
-    if pos is None:
-        return PositionSource.NONE
-    if pos.rule == "local":
-        return PositionSource.LOCAL_POSITION
-    if pos.rule == "dead_reckoning":
-        return PositionSource.DEAD_RECKONED
-    gps = pos.gps
-    if gps is not None and gps.fix_type == 6:
-        return PositionSource.RTK_FIXED
-    if gps is not None and gps.fix_type == 5:
-        return PositionSource.RTK_FLOAT
-    return PositionSource.GPS_3D
-
-
 @dataclass(frozen=True, slots=True)
 class DeviceSample:
     """An IMU or range sample keyed on the device clock (TelemetryBuffer keys on `boot_us`)."""
@@ -181,7 +153,7 @@ class _Pending:
 
 
 class Geotagger:
-    """Pairs device exposures with autopilot telemetry. Thread-safe: feed from any thread, poll from one."""
+    """Pairs device exposures with autopilot telemetry. Single-threaded: the synchroniser feeds and polls it."""
 
     def __init__(
         self,
@@ -198,7 +170,7 @@ class Geotagger:
         self._utc = utc
         self._cfg = config
         self._emit = emit
-        self._q_cam_body = camera_to_body_quaternion(config)
+        self._mounting = CameraMounting.of(config)
         self._rules = PositionRules(
             max_gps_gap_s=config.max_gps_gap_s,
             max_accel_m_s2=config.max_accel_m_s2,
@@ -209,7 +181,7 @@ class Geotagger:
                 config.unseen_accel_h_m_s2, config.unseen_accel_v_m_s2, config.unseen_rate_rad_s2
             ),
         )
-        self._lever_m = float(np.linalg.norm(np.asarray(config.lever_arm_body_m, dtype=float)))
+        self._lever_m = self._mounting.lever_arm_m
         # Device samples come back late after a gap (RESEND): a sample from before the newest one is
         # inserted in place, never taken for a reboot (the synchroniser clears them on a device reboot).
         # Room for what the device resends (its IMU and range rings: 512 and 1024 samples) beside what came
@@ -217,7 +189,6 @@ class Geotagger:
         self._imu: TelemetryBuffer[DeviceSample] = TelemetryBuffer(IMU_SAMPLES_KEPT, reboot_backstep_us=_NEVER_US)
         self._range: TelemetryBuffer[DeviceSample] = TelemetryBuffer(RANGE_SAMPLES_KEPT, reboot_backstep_us=_NEVER_US)
         self._pending: deque[_Pending] = deque()
-        self._lock = threading.Lock()
         self._seq = 0
         self._frame: LocalFrame | None = LocalFrame(*config.origin) if config.origin else None
         self.origin: tuple[float, float, float] | None = config.origin
@@ -249,9 +220,8 @@ class Geotagger:
             flags.append(FrameFlag.FEEDBACK_MISSING.value)
         if exposure.flags & ExposureFlags.UNSOLICITED:
             flags.append(FrameFlag.UNSOLICITED.value)
-        with self._lock:
-            self._seq += 1
-            self._pending.append(_Pending(self._seq, exposure, rx_host_ns, mid, start, flags))
+        self._seq += 1
+        self._pending.append(_Pending(self._seq, exposure, rx_host_ns, mid, start, flags))
 
     # ------------------------------------------------------------------ output
     def poll(self, now_host_ns: int, *, flush: bool = False) -> int:
@@ -260,24 +230,21 @@ class Geotagger:
         `flush` emits everything (at shutdown). Returns the number emitted."""
         emitted = 0
         while True:
-            with self._lock:
-                if not self._pending:
-                    return emitted
-                p = self._pending[0]
+            if not self._pending:
+                return emitted
+            p = self._pending[0]
             mid_host_ns = self._mid_host_ns(p)
             waited_ms = (now_host_ns - mid_host_ns) / 1e6
             if not (flush or waited_ms >= self._wait_limit_ms(mid_host_ns) or self._later_samples_arrived(mid_host_ns)):
                 return emitted
             record = self._build(p, mid_host_ns, now_host_ns)
-            with self._lock:
-                self._pending.popleft()
+            self._pending.popleft()
             self._emit(record)
             emitted += 1
 
     @property
     def pending(self) -> int:
-        with self._lock:
-            return len(self._pending)
+        return len(self._pending)
 
     # ------------------------------------------------------------------ internals
     def _mid_host_ns(self, p: _Pending) -> int:
@@ -314,19 +281,14 @@ class Geotagger:
         return self._tm.attitude_quaternion if len(self._tm.attitude_quaternion) else self._tm.attitude
 
     def _build(self, p: _Pending, mid_host_ns: int, now_host_ns: int) -> FrameRecord:
+        """The frame record, from its parts: timing, position, attitude, IMU, range and the camera rule."""
         e = p.exposure
         flags = list(p.flags)
-        try:
-            unc_ns = self._dev.uncertainty_ns(p.mid_device_us)
-        except IcgtError:
-            unc_ns = 50_000_000  # no exchange yet: USB and scheduling delays of the EXPOSURE itself
-        if unc_ns > self._cfg.max_clock_uncertainty_us * 1000:
-            flags.append(FrameFlag.CLOCK_UNSYNCED.value)
+        unc_ns = self._device_uncertainty_ns(p.mid_device_us, flags)
         utc = self._utc.utc_at(p.mid_device_us, mid_host_ns)
         if utc is None:
             flags.append(FrameFlag.NO_UTC.value)
         mid_boot = self._ap.host_to_autopilot_us(mid_host_ns)
-        ap_method = self._ap.method() if mid_boot is not None else "none"
         ap_unc = self._ap.uncertainty_us(mid_boot) if mid_boot is not None else None
 
         placed = self._position(mid_boot, flags)
@@ -336,114 +298,50 @@ class Geotagger:
         att = self._attitude(mid_boot, flags)
         imu = self._imu_at(p.mid_device_us, e, flags)
         rng = self._range_at(p.mid_device_us, e, flags)
-
-        lat = lon = alt = None
-        enu: np.ndarray | None = None
-        cam_q = None
         body_q = att[0] if att else None
-        bound_h_v = self._position_bound(pos, att[1] if att else None, unc_ns, ap_unc)
-        if pos is not None:
-            enu_body = pos.enu
-            if body_q is not None:
-                lever_ned = q_rotate(body_q, np.asarray(self._cfg.lever_arm_body_m))
-                enu_body = enu_body + np.array([lever_ned[1], lever_ned[0], -lever_ned[2]])
-            enu = enu_body
-            assert self._frame is not None
-            la, lo, al = self._frame.enu_to_geodetic(enu)
-            lat, lon, alt = float(la), float(lo), float(al)
-        if body_q is not None:
-            carrier = body_q
-            if self._cfg.gimbal_stabilised:
-                _, _, body_yaw = q_to_euler_zyx(body_q)
-                carrier = q_from_euler_zyx(0.0, 0.0, float(body_yaw))
-            cam_q = np.asarray(q_multiply(carrier, self._q_cam_body))
-        gps = placed.gps if placed else self._tm.gps.bracket(int(mid_boot) if mid_boot is not None else 0)[0]
-
-        scale = incidence = None
-        if rng is not None and rng[0] is not None:
-            scale = rng[0] * 1000.0 * self._cfg.pixel_pitch_mm / self._cfg.focal_length_mm
-            if cam_q is not None and self._cfg.surface_normal_enu is not None:
-                axis_ned = q_rotate(cam_q, np.array([0.0, 0.0, 1.0]))
-                axis_enu = np.array([axis_ned[1], axis_ned[0], -axis_ned[2]])
-                n = np.asarray(self._cfg.surface_normal_enu, dtype=float)
-                cosang = abs(float(axis_enu @ n)) / float(np.linalg.norm(n))
-                incidence = math.degrees(math.acos(min(1.0, cosang)))
-                scale = scale / max(cosang, 1e-3)  # along the tilt, one pixel covers more surface
-        blur = self._blur_px(imu, mid_boot, e.duration_us, scale)
+        cam = camera_fields(pos.enu if pos else None, body_q, rng[0] if rng else None, self._mounting)
+        blur = self._blur_px(imu, mid_boot, e.duration_us, cam.scale_mm_per_px)
         if blur is not None and blur > self._cfg.blur_limit_px:
             flags.append(FrameFlag.MOTION_BLUR.value)
-        roll = pitch = yaw = None
-        if body_q is not None:
-            r, pt, y = q_to_euler_zyx(body_q)
-            roll, pitch, yaw = math.degrees(float(r)), math.degrees(float(pt)), math.degrees(float(y)) % 360.0
-        calib = imu.calib_stat if imu is not None else None
-        if calib is not None and (calib >> 6) & 3 < 3:
+        if imu is not None and imu.calib_stat is not None and (imu.calib_stat >> 6) & 3 < 3:
             flags.append(FrameFlag.IMU_UNCALIBRATED.value)
+        gps = placed.gps if placed else self._tm.gps.bracket(int(mid_boot) if mid_boot is not None else 0)[0]
+        bound_h_v = self._position_bound(pos, att[1] if att else None, unc_ns, ap_unc)
         return FrameRecord(
-            frame_seq=p.seq,
-            image_index=e.image_index,
-            camera_id=e.camera_id,
-            device_flags=e.flags,
-            trigger_device_us=e.trigger_t_us,
-            start_device_us=p.start_device_us,
-            mid_device_us=p.mid_device_us,
-            duration_us=e.duration_us,
+            **parts.exposure_fields(p.seq, e, p.start_device_us, p.mid_device_us),
             mid_host_ns=mid_host_ns,
             mid_host_uncertainty_ns=unc_ns,
             time_source=utc[2] if utc else "none",
             flags=sorted(set(flags)),
-            position_source=_source_of(pos).value,
-            fix_type=gps.fix_type if gps is not None else 0,
-            pose_gap_before_ms=placed.gap_before_ms if placed else math.inf,
-            pose_gap_after_ms=placed.gap_after_ms if placed else math.inf,
-            position_error_bound_m=math.hypot(*bound_h_v) if bound_h_v else None,
-            horizontal_error_bound_m=bound_h_v[0] if bound_h_v else None,
-            vertical_error_bound_m=bound_h_v[1] if bound_h_v else None,
+            **parts.utc_fields(utc),
+            **parts.position_fields(placed, pos, gps, bound_h_v, self._place(cam), cam),
             attitude_error_bound_deg=att[1] if att else None,
-            mid_utc_us=utc[0] if utc else None,
-            mid_utc_uncertainty_us=utc[1] if utc else None,
-            lat_deg=lat,
-            lon_deg=lon,
-            alt_msl_m=alt,
-            east_m=float(enu[0]) if enu is not None else None,
-            north_m=float(enu[1]) if enu is not None else None,
-            up_m=float(enu[2]) if enu is not None else None,
-            h_acc_m=gps.h_acc_m if gps is not None else None,
-            v_acc_m=gps.v_acc_m if gps is not None else None,
-            satellites=gps.satellites if gps is not None else None,
-            body_qw=float(body_q[0]) if body_q is not None else None,
-            body_qx=float(body_q[1]) if body_q is not None else None,
-            body_qy=float(body_q[2]) if body_q is not None else None,
-            body_qz=float(body_q[3]) if body_q is not None else None,
-            roll_deg=roll,
-            pitch_deg=pitch,
-            yaw_deg=yaw,
-            cam_qw=float(cam_q[0]) if cam_q is not None else None,
-            cam_qx=float(cam_q[1]) if cam_q is not None else None,
-            cam_qy=float(cam_q[2]) if cam_q is not None else None,
-            cam_qz=float(cam_q[3]) if cam_q is not None else None,
-            imu_qw=imu.q_wxyz[0] if imu else None,
-            imu_qx=imu.q_wxyz[1] if imu else None,
-            imu_qy=imu.q_wxyz[2] if imu else None,
-            imu_qz=imu.q_wxyz[3] if imu else None,
-            imu_gyro_rad_s=math.sqrt(sum(w * w for w in imu.gyro_rad_s)) if imu else None,
-            imu_calib_sys=(calib >> 6) & 3 if calib is not None else None,
-            imu_calib_gyr=(calib >> 4) & 3 if calib is not None else None,
-            imu_calib_acc=(calib >> 2) & 3 if calib is not None else None,
-            imu_calib_mag=calib & 3 if calib is not None else None,
-            imu_age_ms=imu.age_ms if imu is not None else None,
-            imu_source=imu.source.value if imu is not None else SensorSource.NONE.value,
-            range_m=rng[0] if rng else None,
-            range_age_ms=rng[1] if rng else None,
-            range_valid=rng is not None and rng[0] is not None,
-            range_source=rng[2].value if rng else SensorSource.NONE.value,
-            scale_mm_per_px=scale,
-            incidence_deg=incidence,
+            **parts.attitude_fields(cam),
+            **parts.imu_fields(imu),
+            **parts.range_fields(rng, cam),
             blur_px=blur,
-            autopilot_clock=ap_method,
-            autopilot_clock_uncertainty_us=ap_unc,
+            **parts.autopilot_clock_fields(self._ap.method() if mid_boot is not None else "none", ap_unc),
             emitted_host_ns=now_host_ns,
         )
+
+    def _device_uncertainty_ns(self, mid_device_us: int, flags: list[str]) -> int:
+        """The device -> host mapping's bound at mid [ns] (flags ``clock_unsynced`` above the limit)."""
+        try:
+            unc_ns = self._dev.uncertainty_ns(mid_device_us)
+        except IcgtError:
+            unc_ns = 50_000_000  # no exchange yet: USB and scheduling delays of the EXPOSURE itself
+        if unc_ns > self._cfg.max_clock_uncertainty_us * 1000:
+            flags.append(FrameFlag.CLOCK_UNSYNCED.value)
+        return unc_ns
+
+    def _place(self, cam: CameraFields) -> tuple[float, float, float] | None:
+        """The camera's WGS84 position (lat, lon [deg], alt MSL [m]) from its ENU one."""
+        enu = cam.enu
+        if enu is None:
+            return None
+        assert self._frame is not None
+        la, lo, al = self._frame.enu_to_geodetic(enu)
+        return float(la), float(lo), float(al)
 
     def _position(self, mid_boot: float | None, flags: list[str]) -> PositionEstimate | PoseGap | None:
         """The position at mid by `icgt.geotag.position` (None: no fix; PoseGap: too far from any sample)."""

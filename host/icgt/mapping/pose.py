@@ -15,8 +15,7 @@ import numpy as np
 from icgt.geodesy import FloatArray, q_to_matrix
 from icgt.geometry import CameraModel, GeometryError
 from icgt.geotag.record import FrameRecord
-
-_NED_TO_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+from icgt.pose import R_NED_TO_ENU
 
 
 def camera_pose(camera: CameraModel, rec: FrameRecord) -> tuple[FloatArray, FloatArray]:
@@ -24,7 +23,7 @@ def camera_pose(camera: CameraModel, rec: FrameRecord) -> tuple[FloatArray, Floa
     if None in (rec.east_m, rec.north_m, rec.up_m, rec.cam_qw, rec.cam_qx, rec.cam_qy, rec.cam_qz):
         raise GeometryError(f"frame {rec.frame_seq}: no position or no camera attitude")
     q = np.array([rec.cam_qw, rec.cam_qx, rec.cam_qy, rec.cam_qz], dtype=np.float64)
-    r_rec = _NED_TO_ENU @ q_to_matrix(q / np.linalg.norm(q))
+    r_rec = R_NED_TO_ENU @ q_to_matrix(q / np.linalg.norm(q))
     c = np.array([rec.east_m, rec.north_m, rec.up_m], dtype=np.float64) + r_rec @ np.asarray(camera.lever_arm_camera_m)
     return c, r_rec @ camera.boresight_matrix()
 

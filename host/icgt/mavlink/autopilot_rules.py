@@ -22,6 +22,8 @@ __all__ = [
     "ORIGIN_WINDOW_NS",
     "REBOOT_BACKSTEP_MS",
     "REBOOT_SILENCE_NS",
+    "YOUNG_EARLY_TOLERANCE_NS",
+    "YOUNG_STREAM_NS",
     "AutopilotPresence",
     "Freshness",
     "boot_clock_ms",
@@ -37,6 +39,12 @@ REBOOT_SILENCE_NS = 1_000_000_000  # a rebooting autopilot is silent this long a
 # is later by its delay: believed up to LATE_TOLERANCE_NS, since what tells a late echo or a replay apart is
 # its time_boot_ms and sequence number running behind the stream's (`_refusal`), not its delay.
 ORIGIN_TOLERANCE_NS = 500_000_000
+# Except while the stream is young: its first messages may all have waited (a host busy starting up, a radio
+# emptying its buffer at link-up), and the first timely one then is earlier than the origin they gave by
+# their delay. Up to YOUNG_EARLY_TOLERANCE_NS earlier is believed in the first YOUNG_STREAM_NS of the stream
+# when its sequence number runs on (a flight stack booted 2 s apart is still another sender).
+YOUNG_STREAM_NS = 10_000_000_000
+YOUNG_EARLY_TOLERANCE_NS = 1_500_000_000
 LATE_TOLERANCE_NS = 5_000_000_000
 ORIGIN_WINDOW_NS = 60_000_000_000
 SEQ_AHEAD_MAX = 64  # packet sequence numbers may jump this far ahead (lost datagrams) within one stream
@@ -111,6 +119,7 @@ class AutopilotPresence:
     _boot_by_type: dict[str, int] = field(default_factory=dict)
     _origins: deque[tuple[int, int]] = field(default_factory=deque)  # (rx, origin) rising: the window's minimum
     _gap_ns: int = 0  # the silence before the messages without a boot clock accepted since the last with one
+    _first_rx_ns: int | None = None  # when the current stream was first heard (its first message, or a reboot's)
 
     def observe(self, msg: Any, mtype: str, rx_ns: int) -> Freshness | None:
         if int(msg.get_srcSystem()) != self.system:
@@ -125,6 +134,7 @@ class AutopilotPresence:
         boot_ms = boot_clock_ms(msg, mtype)
         seq = int(msg.get_seq())
         if self.last_rx_ns is None:
+            self._first_rx_ns = rx_ns
             self._accept(mtype, boot_ms, seq, rx_ns)
             self.detail = f"first {mtype}"
             return Freshness.SEEN
@@ -138,6 +148,7 @@ class AutopilotPresence:
                 f"{silent_ns / 1e9:.3f} s of silence"
             )
             self.origin_ns, self.last_seq, self.seq_counts = None, None, False
+            self._first_rx_ns = rx_ns
             self._boot_by_type.clear()
             self._origins.clear()
             self._accept(mtype, boot_ms, seq, rx_ns)
@@ -160,7 +171,10 @@ class AutopilotPresence:
             if went_back and silent_ns >= REBOOT_SILENCE_NS:
                 return "rebooted"
             off_s = (origin_ns - self.origin_ns) / 1e9
-            if origin_ns < self.origin_ns - ORIGIN_TOLERANCE_NS or origin_ns > self.origin_ns + LATE_TOLERANCE_NS:
+            young = self._first_rx_ns is not None and rx_ns - self._first_rx_ns < YOUNG_STREAM_NS
+            early_ns = YOUNG_EARLY_TOLERANCE_NS if young and self._seq_runs_on(seq, reordered=False) else 0
+            early_ns = max(early_ns, ORIGIN_TOLERANCE_NS)
+            if origin_ns < self.origin_ns - early_ns or origin_ns > self.origin_ns + LATE_TOLERANCE_NS:
                 return (
                     f"its boot clock puts the autopilot's boot {off_s:+.3f} s from where the autopilot's own "
                     "stream, still running, puts it"

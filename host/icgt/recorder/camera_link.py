@@ -27,12 +27,12 @@ import numpy as np
 from icgt.errors import IcgtError
 from icgt.geodesy import q_conjugate, q_multiply
 from icgt.geotag import FrameRecord
-from icgt.geotag.geotagger import _Q_CAM_TO_BODY_BASE
 from icgt.geotag.record import POOR_POSE_FLAGS, FrameFlag
 from icgt.mavlink.camera import CameraComponent, CameraConfig, CameraInfo, CaptureHandler
 from icgt.mavlink.camera_images import CapturedImage
 from icgt.mavlink.home import HomeAltitude
 from icgt.mavlink.link import MavlinkLink
+from icgt.pose import Q_OPTICAL_TO_FRD
 from icgt.recorder.config import RecorderConfig
 
 __all__ = ["CAMERA_IMAGES_SCHEMA", "CameraImages", "build_camera", "pose_verdict"]
@@ -108,7 +108,7 @@ class CameraImages:
         if rec.cam_qw is not None and position_ok:
             # MAVLink's camera quaternion is the camera body (x forward) in NED: undo the optical base.
             cq = np.array([rec.cam_qw, rec.cam_qx, rec.cam_qy, rec.cam_qz], dtype=float)
-            q4 = [float(v) for v in q_multiply(cq, q_conjugate(_Q_CAM_TO_BODY_BASE))]
+            q4 = [float(v) for v in q_multiply(cq, q_conjugate(Q_OPTICAL_TO_FRD))]
             q = (q4[0], q4[1], q4[2], q4[3])
         rel = self.home.relative_alt_m(rec.alt_msl_m, rec.mid_host_ns) if position_ok else None
         image = CapturedImage(

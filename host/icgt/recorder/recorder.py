@@ -68,15 +68,15 @@ from icgt.protocol.messages import (
     Status,
     StopCapture,
 )
-from icgt.recorder import capture, topics, views
+from icgt.recorder import capture, topics
 from icgt.recorder.camera_link import CAMERA_IMAGES_SCHEMA, CameraImages, build_camera
 from icgt.recorder.config import RecorderConfig
 from icgt.recorder.device_stop import SelfStopWatch
 from icgt.recorder.resync import TakeOver, take_over
 from icgt.recorder.step_schedule import StepSchedule
 from icgt.recorder.tuning import InterpreterTuning
-from icgt.recorder.views import FoxgloveViews
-from icgt.recording import McapRecorder, RecordingError, layout
+from icgt.recording import McapRecorder, RecordingError, layout, views
+from icgt.recording.views import FoxgloveViews
 from icgt.recording.writer import McapLogHandler
 from icgt.sync import SyncConfig, Synchroniser
 from icgt.version import __version__
@@ -173,7 +173,9 @@ class Recorder:
         self.exposures = 0
         self._capturing = False
         self._capture_interval_s: float | None = None  # of the capture running (what an outage took)
+        self._cadence_hint = (0, 0)  # (captures started, the last one's interval [ns]), for the worker
         self._stop = threading.Event()
+        self._nudge = threading.Event()  # wakes the worker before its scheduled step (a capture started, stop)
         self._worker: threading.Thread | None = None
         self._worker_lock = threading.Lock()  # the worker's step, and stop()'s final drain
         # What the worker writes in one step, handed to the log at once (McapRecorder.write_many); None
@@ -378,6 +380,7 @@ class Recorder:
         if self._stop.is_set():
             return
         self._stop.set()
+        self._nudge.set()
         if self.device is not None:
             # The worker steps no more: the device reader reads the stream again (during the wait below)
             self.device.set_pumped(False)
@@ -632,6 +635,9 @@ class Recorder:
         self.device.command(cmd)
         self._capturing = count != 1
         self._capture_interval_s = interval_us / 1e6
+        if self._capturing:  # the worker gives it to its step schedule (which is its own)
+            self._cadence_hint = (self._cadence_hint[0] + 1, interval_us * 1000)
+            self._nudge.set()  # its first exposure is a shutter lag away: the worker's eager steps start now
         if self.camera is not None:
             self.camera.set_capturing(self._capturing, interval_us / 1e6)
         log.info("capture started: %s, interval %.3f s, count %d", mode.name.lower(), interval_us / 1e6, count)
@@ -759,8 +765,17 @@ class Recorder:
     def _work(self) -> None:
         # The readers never wake the worker (no switch per message): it steps on its schedule (step_schedule).
         wait_s = self.schedule.timing.period_s
-        while not self._stop.wait(wait_s):
+        hint_seen = 0
+        while True:
+            self._nudge.wait(wait_s)
+            self._nudge.clear()
+            if self._stop.is_set():
+                break
             try:
+                hint = self._cadence_hint
+                if hint[0] != hint_seen:
+                    hint_seen = hint[0]
+                    self.schedule.expect_interval(hint[1], time.monotonic_ns())
                 with self._step():
                     self._drain(limit=_DRAIN_MAX)
                     now = time.monotonic_ns()

@@ -36,9 +36,13 @@ class StepTiming:
     # and Linux's serial line discipline holds 4 KB (N_TTY_BUF_SIZE) before it throttles the port; at a 10 k
     # msg/s flood 100 ms is ~1000 datagrams, a quarter of the 4 MB UDP receive buffer.
     period_s: float = 0.1
-    retry_s: float = 0.02  # a frame pending after a step is tried again this much later
-    max_retries: int = 5  # consecutive retries, then the base period (a frame waiting out a GPS gap)
-    ready_after_s: float = 0.03  # after a due mid-exposure: its exposure record and the telemetry after it
+    # A frame pending after a step is tried again this much later. The telemetry after mid-exposure arrives
+    # within its period (20 ms at 50 Hz) plus the link's latency: a 10 ms retry adds at most that to a frame
+    # whose sample came just after the due step (benchmarks/capture_rates.py prints the parts).
+    retry_s: float = 0.01
+    max_retries: int = 10  # consecutive retries (100 ms), then the base period (a frame waiting out a GPS gap)
+    ready_after_s: float = 0.025  # after a due mid-exposure: its exposure record and the telemetry after it
+    first_frame_s: float = 1.0  # after a capture starts, steps at retry_s until its first frame (shutter lag)
     min_interval_s: float = 0.04  # frames closer (two cameras; 20 fps, the fastest trigger, is 50 ms) set none
     max_interval_s: float = 5.0  # frames farther apart than this: no cadence (single shots)
     max_misses: int = 3  # due times without a frame before the cadence is forgotten
@@ -66,14 +70,27 @@ class StepSchedule:
         self._last_mid_ns: int | None = None
         self._interval_ns: int | None = None
         self._retries = 0
+        self._first_ns = int(t.first_frame_s * 1e9)
+        self._first_until_ns = 0  # a capture started: waiting for its first frame until then [ns]
 
     @property
     def interval_ns(self) -> int | None:
         """The frame interval the schedule steps at [ns]; None without a cadence."""
         return self._interval_ns
 
+    def expect_interval(self, interval_ns: int, now_ns: int) -> None:
+        """A capture at this interval started at ``now_ns``: the worker steps at ``retry_s`` until its first
+        frame (for at most ``first_frame_s``: the camera's shutter lag is not known here), and the second
+        frame is due one interval after the first (without this the cadence is learnt from two frames, and
+        the first two wait for base-period steps)."""
+        self._last_mid_ns = None  # the previous capture's last frame says nothing of this one's phase
+        self._interval_ns = interval_ns if self._min_ns <= interval_ns <= self._max_ns else None
+        self._retries = 0
+        self._first_until_ns = now_ns + self._first_ns
+
     def on_frame(self, mid_host_ns: int) -> None:
         """A frame emitted, with its mid-exposure [host ns]."""
+        self._first_until_ns = 0
         last = self._last_mid_ns
         if last is not None:
             gap = mid_host_ns - last
@@ -94,6 +111,8 @@ class StepSchedule:
                 nxt = min(nxt, now_ns + self._retry_ns)
         else:
             self._retries = 0
+        if now_ns < self._first_until_ns:
+            nxt = min(nxt, now_ns + self._retry_ns)
         interval, last = self._interval_ns, self._last_mid_ns
         if interval is not None and last is not None:
             # The first due time after now: last + k * interval + ready, k >= 1.

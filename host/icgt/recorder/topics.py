@@ -3,7 +3,7 @@
 Raw device messages and raw MAVLink messages are recorded as they came, one topic per
 message type, so poses can be recomputed later without re-flying. Their JSON Schemas are
 derived from the protocol table (device) and from pymavlink's field lists (MAVLink). The Foxglove views
-of frames and telemetry are `icgt.recorder.views`.
+of frames and telemetry are `icgt.recording.views`.
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ be recomputed later; derived ones (frames, clock estimates) say how they were ma
 * ``/vehicle/location``, ``/tf``, ``/tf_static``, ``/camera/calibration``, ``/icgt/device_log``
   (protobuf, Foxglove): the vehicle track at telemetry rate, the transform tree ``enu -> base_link ->
   camera_mount -> camera_optical``, the camera's calibration and the device's log
-  (`icgt.recorder.views`); an export adds ``/camera/image`` (CompressedImage, `icgt.export.foxglove`);
+  (`icgt.recording.views`); an export adds ``/camera/image`` (CompressedImage, `icgt.export.foxglove`);
 * ``/device/<message>`` (JSON): every device message (EXPOSURE, IMU, RANGE, PPS, HELLO, STATUS, LOG, ...)
   with its host receive time ``host_rx_ns``;
 * ``/mavlink/<message>`` (JSON): every MAVLink message received from the vehicle's system and the

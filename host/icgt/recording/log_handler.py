@@ -3,14 +3,11 @@
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 from foxglove_schemas_protobuf.Log_pb2 import Log
 
 from icgt.recording.mcap_file import RecordingError
-
-if TYPE_CHECKING:
-    from icgt.recording.writer import McapRecorder
 
 __all__ = ["McapLogHandler"]
 
@@ -23,10 +20,18 @@ _LOG_LEVELS = (
 )
 
 
+class LogSink(Protocol):
+    """What the handler writes to (an `icgt.recording.writer.McapRecorder`)."""
+
+    def write(
+        self, topic: str, message: Any, log_time_ns: int | None = None, publish_time_ns: int | None = None
+    ) -> None: ...
+
+
 class McapLogHandler(logging.Handler):
     """Records Python log records on a foxglove.Log topic of a recorder (Foxglove's Log panel shows them)."""
 
-    def __init__(self, recorder: McapRecorder, topic: str = "/icgt/log", level: int = logging.INFO) -> None:
+    def __init__(self, recorder: LogSink, topic: str = "/icgt/log", level: int = logging.INFO) -> None:
         super().__init__(level)
         self._recorder = recorder
         self._topic = topic

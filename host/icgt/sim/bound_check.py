@@ -21,11 +21,12 @@ from typing import Literal, Protocol
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from icgt.geodesy import FloatArray, LocalFrame, q_multiply, q_rotate
+from icgt.geodesy import FloatArray, LocalFrame, q_multiply
 from icgt.geotag.geotagger import GeotagConfig, Geotagger
 from icgt.geotag.record import FrameFlag, FrameRecord
 from icgt.mavlink.link_types import MavlinkMessage
 from icgt.mavlink.telemetry import TelemetryStore
+from icgt.pose import camera_position_enu
 from icgt.protocol.messages import Exposure
 from icgt.sim.scenario import Scenario
 from icgt.sim.survey import SurveyState
@@ -283,8 +284,7 @@ def score_flight(
 def _score(flight: FlightTruth, gaps: list[Gap], plan: TelemetryPlan, f: FrameRecord) -> FrameScore:
     t = (f.mid_device_us - _BOOT0_US) / 1e6
     st = flight.state(t)
-    lever_ned = q_rotate(st.q_body_ned[0], np.asarray(plan.lever_arm_body_m))
-    truth = st.position_enu_m[0] + np.array([lever_ned[1], lever_ned[0], -lever_ned[2]])
+    truth = camera_position_enu(st.position_enu_m[0], st.q_body_ned[0], plan.lever_arm_body_m)
     gap = next((g.duration_s for g in gaps if g.holds(t)), 0.0)
     placed = f.east_m is not None and f.north_m is not None and f.up_m is not None
     if placed:

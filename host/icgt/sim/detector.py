@@ -46,7 +46,7 @@ def _to_pixels(scenario: Scenario, e: ExposureTruth, st: FloatArray) -> FloatArr
     w, _ = render_size(scenario, scenario.surface)  # type: ignore[arg-type]
     f = cam.width_px / w
     enu = FaceFrame.from_scenario(scenario).to_enu(st)
-    p_cam = (enu - np.asarray(e.position_enu_m)) @ camera_to_enu(e.q_camera_ned)
+    p_cam = (enu - np.asarray(e.position_enu_m)) @ camera_to_enu(e.q_optical_ned)
     uv = cam.project(p_cam)
     out: FloatArray = (uv + 0.5) / f - 0.5
     return out

@@ -120,7 +120,9 @@ def fly_faults(sc: Scenario, plan: FaultPlan, out: Path) -> FlightResult:
     out.mkdir(parents=True, exist_ok=True)
     for previous in ("recording", "sim", "ctl"):  # a folder reused (make bench): only this flight's files count
         shutil.rmtree(out / previous, ignore_errors=True)
-    session = SimSession(sc, out / "sim", mavlink_port=free_udp_port(), gcs_port=free_udp_port())
+    # Held until the recorder is up: on a loaded machine its start-up can take longer than the scenario's time
+    # before the first fault, and the fault would then meet a recorder whose clocks had no time to settle.
+    session = SimSession(sc, out / "sim", mavlink_port=free_udp_port(), gcs_port=free_udp_port(), hold=True)
     urls = session.start()
     rec_dir = out / "recording"
     config = out / "recorder.toml"
@@ -134,6 +136,7 @@ def fly_faults(sc: Scenario, plan: FaultPlan, out: Path) -> FlightResult:
     recorder: subprocess.Popen[bytes] | None = None
     try:
         recorder = _start_recorder(config, urls, sock, log)
+        session.release()
         session.wait_until(plan.capture_start_s)
         request(sock, {"command": "start"})
         for fault in sorted(plan.faults, key=lambda f: f.start_s):

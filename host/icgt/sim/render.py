@@ -15,14 +15,11 @@ from PIL import Image
 
 from icgt.geodesy import FloatArray, q_to_matrix
 from icgt.geometry import CameraModel
+from icgt.pose import R_NED_TO_ENU
 from icgt.sim.face import FaceFrame
 from icgt.sim.scenario import Scenario
 from icgt.sim.surface import Surface, shade
 from icgt.sim.truth import ExposureTruth
-
-_NED_TO_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
-_OPTICAL_TO_FRD = q_to_matrix(np.array([0.5, 0.5, 0.5, 0.5]))
-"""Camera optical axes (x right, y down, z forward) -> the scenario's camera FRD axes."""
 
 
 def scenario_camera(scenario: Scenario) -> CameraModel:
@@ -40,9 +37,9 @@ def render_size(scenario: Scenario, surface: Surface) -> tuple[int, int]:
     return w, max(1, round(w * c.image_height_px / c.image_width_px))
 
 
-def camera_to_enu(q_camera_ned: tuple[float, float, float, float]) -> FloatArray:
-    """Rotation optical camera axes -> ENU for a true camera (FRD) -> NED attitude."""
-    out: FloatArray = _NED_TO_ENU @ q_to_matrix(np.asarray(q_camera_ned, dtype=np.float64)) @ _OPTICAL_TO_FRD
+def camera_to_enu(q_optical_ned: tuple[float, float, float, float]) -> FloatArray:
+    """Rotation camera optical axes -> ENU for a true camera optical -> NED attitude (`icgt.pose`)."""
+    out: FloatArray = R_NED_TO_ENU @ q_to_matrix(np.asarray(q_optical_ned, dtype=np.float64))
     return out
 
 
@@ -53,7 +50,7 @@ def face_points(scenario: Scenario, surface: Surface, e: ExposureTruth) -> tuple
     f = cam.width_px / w
     uu, vv = np.meshgrid((np.arange(w) + 0.5) * f - 0.5, (np.arange(h) + 0.5) * f - 0.5)
     rays = cam.rays(uu.ravel(), vv.ravel())
-    r = camera_to_enu(e.q_camera_ned)
+    r = camera_to_enu(e.q_optical_ned)
     d = rays @ r.T
     face = FaceFrame.from_scenario(scenario)
     c = np.asarray(e.position_enu_m)

@@ -31,10 +31,9 @@ from icgt.geodesy import (
     ned_to_enu,
     q_from_euler_zyx,
     q_from_matrix,
-    q_multiply,
     q_rotate,
-    q_to_euler_zyx,
 )
+from icgt.pose import camera_quaternion
 from icgt.sim.scenario import DeckPass, Hover, PierScan, Scenario, Survey
 from icgt.sim.survey import Leg, SurveyFlight
 
@@ -356,13 +355,9 @@ class Trajectory:
         return q_from_matrix(np.stack([x_b, y_b, z_b], axis=-1))
 
     def _camera_attitude(self, q_body: FloatArray) -> FloatArray:
-        cam = self.scenario.camera
-        if not cam.stabilised:
-            return q_multiply(q_body, self.q_mount)
-        _, _, yaw = q_to_euler_zyx(q_body)
-        return q_from_euler_zyx(
-            math.radians(cam.mount_roll_deg), math.radians(cam.mount_pitch_deg), yaw + math.radians(cam.mount_yaw_deg)
-        )
+        """The camera board's FRD axes -> NED: the geotagger's camera rule (`icgt.pose.camera_quaternion`) with
+        the mounting in FRD camera axes (the optical frame is `Q_OPTICAL_TO_FRD` on top)."""
+        return camera_quaternion(q_body, self.q_mount, gimbal_stabilised=self.scenario.camera.stabilised)
 
     def state(self, tau_s: FloatArray | float) -> TruthState:
         """The true state at each scenario time in tau_s (1-D array or scalar -> arrays of N rows)."""

@@ -24,7 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from icgt.geodesy import FloatArray, LocalFrame, enu_to_ned, q_conjugate, q_rotate
+from icgt.geodesy import FloatArray, LocalFrame, enu_to_ned, q_conjugate, q_multiply, q_rotate
+from icgt.pose import Q_OPTICAL_TO_FRD
 from icgt.sim.scenario import Scenario, SimError
 from icgt.sim.trajectory import GRAVITY_M_S2, Trajectory
 
@@ -213,6 +214,9 @@ class ExposureTruth:
     position_enu_m: tuple[float, float, float]
     body_position_enu_m: tuple[float, float, float]
     q_camera_ned: tuple[float, float, float, float]
+    """The camera board's FRD axes (x along the optical axis; the BNO055's sensor frame) -> NED."""
+    q_optical_ned: tuple[float, float, float, float]
+    """Camera optical (x right, y down, z forward) -> NED: the frame record's ``cam_q*`` (`icgt.pose`)."""
     q_body_ned: tuple[float, float, float, float]
     omega_camera_rad_s: tuple[float, float, float]
     range_m: float | None
@@ -279,6 +283,7 @@ def exposure_truth(
         tau = float(mid_tau[i])
         q_c = st.q_camera_ned[i]
         q_b = st.q_body_ned[i]
+        q_o = q_multiply(q_c, Q_OPTICAL_TO_FRD)
         out.append(
             ExposureTruth(
                 frame_number=int(e.get("frame_number", i + 1)),
@@ -300,6 +305,7 @@ def exposure_truth(
                 position_enu_m=_tuple3(st.camera_position_enu_m[i]),
                 body_position_enu_m=_tuple3(st.position_enu_m[i]),
                 q_camera_ned=(float(q_c[0]), float(q_c[1]), float(q_c[2]), float(q_c[3])),
+                q_optical_ned=(float(q_o[0]), float(q_o[1]), float(q_o[2]), float(q_o[3])),
                 q_body_ned=(float(q_b[0]), float(q_b[1]), float(q_b[2]), float(q_b[3])),
                 omega_camera_rad_s=_tuple3(st.omega_camera_rad_s[i]),
                 range_m=float(st.range_m[i]) if bool(st.range_valid[i]) else None,

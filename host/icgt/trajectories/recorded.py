@@ -18,8 +18,9 @@ import math
 
 import numpy as np
 
-from icgt.geodesy import LocalFrame, q_rotate
+from icgt.geodesy import LocalFrame
 from icgt.geotag.record import FrameFlag, FrameRecord
+from icgt.pose import reference_position_enu
 from icgt.trajectories.source import PoseFix, PoseMiss, TimeBase
 
 __all__ = ["RecordedTelemetry"]
@@ -51,8 +52,7 @@ class RecordedTelemetry:
         q = None
         if None not in (frame.body_qw, frame.body_qx, frame.body_qy, frame.body_qz):
             q = np.array([frame.body_qw, frame.body_qx, frame.body_qy, frame.body_qz], dtype=float)
-            lever_ned = q_rotate(q, self.lever_arm)
-            enu = enu - np.array([lever_ned[1], lever_ned[0], -lever_ned[2]])
+            enu = reference_position_enu(enu, q, self.lever_arm)
         bound = frame.position_error_bound_m if frame.position_error_bound_m is not None else math.inf
         return PoseFix(
             enu,

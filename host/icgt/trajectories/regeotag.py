@@ -10,8 +10,9 @@ frame's mid-exposure, the way the geotagger places it live (`icgt.geotag.geotagg
   error turns the lever arm: ``|lever| * recorded_attitude_error_deg`` is added to the bound, the whole
   ``|lever|`` when the recorded pose was held across a telemetry gap (``pose_extrapolated``: its
   attitude is as old); with neither, the reference point is used and ``|lever|`` is added;
-* camera attitude = body attitude * the camera mounting (`camera_to_body_quaternion`), or only the
-  body's yaw for a stabilised gimbal; roll/pitch/yaw and the incidence on the structure follow.
+* camera attitude = body attitude * the camera mounting (`icgt.pose.camera_to_body_quaternion`), or only the
+  body's yaw for a stabilised gimbal; roll/pitch/yaw and the incidence on the structure follow
+  (the camera rule is the geotagger's own: `icgt.pose.camera_fields`).
 
 Set from the source: lat/lon/alt (MSL), east/north/up, ``position_source`` (the source's label:
 ``ppk_fixed``, ``ppk_float``, ... or ``slam``), ``position_error_bound_m``, the pose gaps; flags
@@ -33,9 +34,11 @@ from typing import Any
 
 import numpy as np
 
-from icgt.geodesy import LocalFrame, q_from_euler_zyx, q_multiply, q_rotate, q_to_euler_zyx
-from icgt.geotag.geotagger import GeotagConfig, camera_to_body_quaternion
+from icgt.geodesy import LocalFrame
+from icgt.geotag.geotagger import GeotagConfig
+from icgt.geotag.parts import attitude_fields
 from icgt.geotag.record import FrameFlag, FrameRecord
+from icgt.pose import CameraMounting, camera_fields
 from icgt.trajectories.source import PoseFix, PoseMiss, PoseSource, TrajectoryError
 
 __all__ = ["RegeotagConfig", "RegeotagResult", "regeotag", "regeotag_detailed"]
@@ -93,30 +96,28 @@ def _place(frame: FrameRecord, fix: PoseFix, cfg: RegeotagConfig, local: LocalFr
     g = cfg.geotag
     body_q = fix.q_body_ned if fix.q_body_ned is not None else _recorded_attitude(frame)
     flags = set(frame.flags) - _POSE_FLAGS
-    bound = fix.error_bound_m
+    mounting = CameraMounting.of(g, lever_arm_body_m=tuple(cfg.lever_arm))
+    cam = camera_fields(np.asarray(fix.enu_m, dtype=float), body_q, _valid_range(frame), mounting)
     lever_part = 0.0
-    enu = np.asarray(fix.enu_m, dtype=float)
-    arm = float(np.linalg.norm(cfg.lever_arm))
-    if body_q is not None:
-        lever_ned = q_rotate(body_q, cfg.lever_arm)
-        enu = enu + np.array([lever_ned[1], lever_ned[0], -lever_ned[2]])
     if body_q is None or (fix.q_body_ned is None and FrameFlag.POSE_EXTRAPOLATED.value in frame.flags):
-        lever_part = arm  # no attitude, or one held from before a telemetry gap: the camera is on that sphere
+        lever_part = mounting.lever_arm_m  # no attitude, or one held from before a telemetry gap: on that sphere
     elif fix.q_body_ned is None:
-        lever_part = arm * math.radians(cfg.recorded_attitude_error_deg)  # the borrowed attitude's error
-    bound += lever_part
+        lever_part = mounting.lever_arm_m * math.radians(cfg.recorded_attitude_error_deg)  # the borrowed attitude's
+    bound = fix.error_bound_m + lever_part
     if fix.stale if fix.stale is not None else bound > g.max_position_error_m:
         flags.add(FrameFlag.STALE_POSE.value)
     if fix.extrapolated:
         flags.add(FrameFlag.POSE_EXTRAPOLATED.value)
+    enu = cam.enu
+    assert enu is not None
     la, lo, al = local.enu_to_geodetic(enu)
     changes: dict[str, Any] = {
         "lat_deg": float(la),
         "lon_deg": float(lo),
         "alt_msl_m": float(al),
-        "east_m": float(enu[0]),
-        "north_m": float(enu[1]),
-        "up_m": float(enu[2]),
+        "east_m": cam.east_m,
+        "north_m": cam.north_m,
+        "up_m": cam.up_m,
         "position_source": fix.label,
         "position_error_bound_m": bound,
         "horizontal_error_bound_m": (fix.horizontal_bound_m if fix.horizontal_bound_m is not None else bound)
@@ -127,42 +128,16 @@ def _place(frame: FrameRecord, fix: PoseFix, cfg: RegeotagConfig, local: LocalFr
     }
     if fix.q_body_ned is not None:
         flags.discard(FrameFlag.NO_ATTITUDE.value)
-        changes.update(_attitude_fields(frame, fix.q_body_ned, g))
+        changes.update(attitude_fields(cam))
+        if g.surface_normal_enu is not None and cam.scale_mm_per_px is not None:
+            # incidence and scale follow the camera's attitude (the geotagger's rule, icgt.pose)
+            changes.update(incidence_deg=cam.incidence_deg, scale_mm_per_px=cam.scale_mm_per_px)
     changes["flags"] = sorted(flags)
     return dataclasses.replace(frame, **changes)
 
 
-def _attitude_fields(frame: FrameRecord, body_q: np.ndarray, g: GeotagConfig) -> dict[str, Any]:
-    carrier = body_q
-    if g.gimbal_stabilised:
-        _, _, yaw = q_to_euler_zyx(body_q)
-        carrier = q_from_euler_zyx(0.0, 0.0, float(yaw))
-    cam_q = np.asarray(q_multiply(carrier, camera_to_body_quaternion(g)), dtype=float)
-    r, p, y = (math.degrees(float(a)) for a in q_to_euler_zyx(body_q))
-    out: dict[str, Any] = {
-        "body_qw": float(body_q[0]),
-        "body_qx": float(body_q[1]),
-        "body_qy": float(body_q[2]),
-        "body_qz": float(body_q[3]),
-        "roll_deg": r,
-        "pitch_deg": p,
-        "yaw_deg": y % 360.0,
-        "cam_qw": float(cam_q[0]),
-        "cam_qx": float(cam_q[1]),
-        "cam_qy": float(cam_q[2]),
-        "cam_qz": float(cam_q[3]),
-    }
-    # Incidence and scale depend on the camera's attitude: the geotagger's rule (the optical axis,
-    # camera z, against the structure's normal; the scale grows by 1/cos along the tilt).
-    if frame.range_valid and frame.range_m is not None and g.surface_normal_enu is not None:
-        axis_ned = q_rotate(cam_q, np.array([0.0, 0.0, 1.0]))
-        axis_enu = np.array([axis_ned[1], axis_ned[0], -axis_ned[2]])
-        n = np.asarray(g.surface_normal_enu, dtype=float)
-        cosang = abs(float(axis_enu @ n)) / float(np.linalg.norm(n))
-        out["incidence_deg"] = math.degrees(math.acos(min(1.0, cosang)))
-        scale = frame.range_m * 1000.0 * g.pixel_pitch_mm / g.focal_length_mm
-        out["scale_mm_per_px"] = scale / max(cosang, 1e-3)
-    return out
+def _valid_range(frame: FrameRecord) -> float | None:
+    return frame.range_m if frame.range_valid and frame.range_m is not None else None
 
 
 def regeotag_detailed(frames: Iterable[FrameRecord], source: PoseSource, config: RegeotagConfig) -> RegeotagResult:

@@ -45,36 +45,23 @@ from foxglove_schemas_protobuf.LocationFix_pb2 import LocationFix
 from foxglove_schemas_protobuf.Log_pb2 import Log as FoxgloveLog
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
-from icgt.geodesy import Q_NED_TO_ENU, LocalFrame, q_conjugate, q_multiply, q_multiply_tuple, q_rotate
+from icgt.geodesy import Q_NED_TO_ENU, LocalFrame, q_multiply
 from icgt.geotag import FrameRecord
-from icgt.geotag.geotagger import GeotagConfig, camera_to_body_quaternion
+from icgt.geotag.geotagger import GeotagConfig
+from icgt.pose import (
+    Q_FRD_TO_FLU,
+    camera_to_body_quaternion,
+    frame_tree,
+    frd_to_flu,
+    q_flu_to_enu_floats,
+)
 from icgt.recording import layout
 
 Write = Callable[[str, Any, int], None]
 """The recorder's write: (topic, message, host CLOCK_MONOTONIC ns of the data)."""
 
-_Q_FRD_TO_FLU = np.array([0.0, 1.0, 0.0, 0.0])  # 180 deg about x (its own inverse)
 _DEVICE_LOG_LEVELS = {1: FoxgloveLog.DEBUG, 2: FoxgloveLog.INFO, 3: FoxgloveLog.WARNING, 4: FoxgloveLog.ERROR}
 _GPS_FIX_3D = 3
-
-
-_Quat = tuple[float, float, float, float]
-_S = math.sqrt(0.5)
-
-
-def _flu_to_enu_fast(q: _Quat) -> _Quat:
-    """`q_flu_to_enu` on plain floats: NED->ENU * q * FRD->FLU (the numpy one costs ~40 us a call at telemetry rate)."""
-    return q_multiply_tuple(q_multiply_tuple((0.0, _S, _S, 0.0), q), (0.0, 1.0, 0.0, 0.0))
-
-
-def frd_to_flu(v: Any) -> tuple[float, float, float]:
-    """A body FRD vector in FLU axes."""
-    return (float(v[0]), -float(v[1]), -float(v[2]))
-
-
-def q_flu_to_enu(q_frd_to_ned: Any) -> np.ndarray[Any, Any]:
-    """A body FRD -> NED quaternion (w first) as the body FLU -> ENU one of the same attitude."""
-    return np.asarray(q_multiply(q_multiply(Q_NED_TO_ENU, q_frd_to_ned), _Q_FRD_TO_FLU))
 
 
 def camera_calibration(cfg: GeotagConfig, timestamp_ns: int) -> CameraCalibration:
@@ -160,7 +147,7 @@ class FoxgloveViews:
 
     def mount_transform(self, ns: int) -> FrameTransform:
         """base_link -> camera_mount: the lever arm (FRD, in FLU here) and the camera's mounting."""
-        q = q_multiply(_Q_FRD_TO_FLU, self._q_cam_to_body)  # camera (optical axes) -> base_link FLU
+        q = q_multiply(Q_FRD_TO_FLU, self._q_cam_to_body)  # camera (optical axes) -> base_link FLU
         return _transform(ns, layout.BASE_FRAME, layout.MOUNT_FRAME, frd_to_flu(self._lever_frd), q)
 
     # --- telemetry --------------------------------------------------------------------------------
@@ -212,7 +199,7 @@ class FoxgloveViews:
             self._position_enu = self._enu(*self._last_fix)
         if self._position_enu is None or not _finite(*q) or not 0.5 < math.sqrt(sum(c * c for c in q)) < 1.5:
             return
-        pose = _flu_to_enu_fast(q)
+        pose = q_flu_to_enu_floats(q)
         tf = _transform(self._epoch(rx_ns), layout.WORLD_FRAME, layout.BASE_FRAME, self._position_enu, pose)
         self._out(layout.TF, FrameTransforms(transforms=[tf]), rx_ns)
 
@@ -253,10 +240,7 @@ class FoxgloveViews:
             o.w, o.x, o.y, o.z = (float(c) for c in q_cam_enu / np.linalg.norm(q_cam_enu))
             self._out(layout.FRAMES_POSE, pose, host)
             if _finite(*body):
-                q_base = q_flu_to_enu(body)
-                base_enu = cam_enu - q_rotate(q_base, frd_to_flu(self._lever_frd))
-                nominal = q_multiply(body, self._q_cam_to_body)  # camera -> NED as mounted
-                residual = q_multiply(q_conjugate(nominal), cam)  # what a gimbal turned it by
+                base_enu, q_base, residual = frame_tree(cam_enu, body, cam, self._q_cam_to_body, self._lever_frd)
                 transforms = [
                     _transform(ns, layout.WORLD_FRAME, layout.BASE_FRAME, base_enu, q_base),
                     _transform(ns, layout.MOUNT_FRAME, layout.CAMERA_FRAME, (0.0, 0.0, 0.0), residual),

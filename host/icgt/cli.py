@@ -315,6 +315,11 @@ def build_parser() -> argparse.ArgumentParser:
     add_tiles_arguments(tiles)
     tiles.set_defaults(func=_cmd_tiles)
 
+    from icgt.catalog.cli import add_catalog_arguments
+
+    catalog = sub.add_parser("catalog", help="the inspection catalogue: add flights (GeoParquet), query them (DuckDB)")
+    add_catalog_arguments(catalog)
+
     demo = sub.add_parser("demo", help="the main job on simulated hardware, with a summary against truth")
     demo.add_argument("--scenario", default="pier_scan")
     demo.add_argument("--out", type=Path, default=Path("demo-out"))

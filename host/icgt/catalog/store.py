@@ -1,0 +1,312 @@
+"""The catalogue folder: its marker, its lock, staging and the atomic publication of a flight's partition.
+
+    DIR/icgt-catalog.json                          the marker: format and schema version
+    DIR/.lock                                      held (flock) by the add writing; its pid inside
+    DIR/.staging/                                  adds in progress (a killed one's leftovers are removed)
+    DIR/structure=NAME/flight=ID/TABLE.parquet     the partitions, TABLE in flights frames images footprints defects
+
+A partition is written whole into DIR/.staging, read back, and then renamed into place: one rename, so a
+reader (or a kill -9) sees the flight's old partition or its new one, never part of one. A partition
+replaced by a new revision of its flight is swapped in one step where the filesystem can (Linux
+renameat2 RENAME_EXCHANGE); elsewhere the old one is moved aside and the new one in, with a journal in
+.staging that the next add completes if it was interrupted between the two. Two adds at once: the
+second waits for the lock (`wait_s`), then is refused naming the holder.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import errno
+import fcntl
+import json
+import logging
+import os
+import re
+import shutil
+import time
+import uuid
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from icgt.catalog import CatalogError
+from icgt.catalog.collect import FlightTables, collect, identify
+from icgt.catalog.schema import SCHEMA_VERSION, SCHEMAS, TABLES, check_version, table_version
+
+log = logging.getLogger(__name__)
+
+MARKER = "icgt-catalog.json"
+FORMAT = "icgt-catalog"
+LOCK = ".lock"
+STAGING = ".staging"
+DEFAULT_CATALOG = Path("catalog")
+DEFAULT_WAIT_S = 60.0
+"""How long an add waits for another add holding the catalogue's lock before it is refused [s]."""
+
+_FORBIDDEN = re.compile(r'[/\\\x00-\x1f\x7f:*?"<>|\[\]{}=]')
+
+
+def check_structure(name: str) -> str:
+    """The structure name if it can name a partition folder as it is; CatalogError saying why not."""
+    if not name or name.strip() != name or name.startswith(".") or len(name) > 128 or _FORBIDDEN.search(name):
+        raise CatalogError(
+            f"--structure {name!r}: a structure name is 1-128 characters without path or glob characters "
+            '(/ \\ : * ? " < > | [ ] { } =), control characters, a leading dot or surrounding spaces'
+        )
+    return name
+
+
+def partition(root: Path, structure: str, flight: str) -> Path:
+    return root / f"structure={structure}" / f"flight={flight}"
+
+
+@dataclass(frozen=True)
+class AddResult:
+    structure: str
+    flight: str
+    revision: str
+    status: str
+    """added, replaced (a new revision of a flight already there) or unchanged (the same content)."""
+    replaced: str | None
+    rows: dict[str, int]
+    path: Path
+
+
+class Catalog:
+    """A catalogue folder (created by the first add into an empty or missing folder)."""
+
+    def __init__(self, root: Path, *, create: bool = False) -> None:
+        self.root = root
+        marker = root / MARKER
+        if not root.exists():
+            if not create:
+                raise CatalogError(f"{root}: no such catalogue")
+            try:
+                root.mkdir(parents=True)
+            except OSError as exc:
+                raise CatalogError(f"cannot create the catalogue {root}: {exc.strerror or exc}") from None
+        if not root.is_dir():
+            raise CatalogError(f"{root}: not a folder, so not a catalogue")
+        if not marker.exists():
+            if create and not any(root.iterdir()):
+                self._write_marker(marker)
+            else:
+                raise CatalogError(
+                    f"{root}: not an icgt catalogue (no {MARKER}; a new catalogue needs an empty or missing folder)"
+                )
+        self.version = self._read_marker(marker)
+
+    @staticmethod
+    def _write_marker(marker: Path) -> None:
+        tmp = marker.with_name(marker.name + ".tmp")
+        tmp.write_text(json.dumps({"format": FORMAT, "schema_version": SCHEMA_VERSION}, indent=1) + "\n")
+        os.replace(tmp, marker)
+
+    @staticmethod
+    def _read_marker(marker: Path) -> int:
+        try:
+            data = json.loads(marker.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            raise CatalogError(f"{marker}: unreadable catalogue marker ({exc})") from None
+        if not isinstance(data, dict) or data.get("format") != FORMAT:
+            raise CatalogError(f"{marker}: not an icgt catalogue marker (format {FORMAT!r} expected)")
+        return check_version(data.get("schema_version"), str(marker.parent))
+
+    # --- reading -------------------------------------------------------------------------------------
+    def partitions(self) -> list[Path]:
+        return sorted(p for p in self.root.glob("structure=*/flight=*") if p.is_dir())
+
+    def files(self, table: str) -> list[Path]:
+        if table not in TABLES:
+            raise CatalogError(f"no table {table!r}; tables: {', '.join(TABLES)}")
+        return [p / f"{table}.parquet" for p in self.partitions() if (p / f"{table}.parquet").is_file()]
+
+    def flight_row(self, structure: str, flight: str) -> dict[str, object] | None:
+        path = partition(self.root, structure, flight) / "flights.parquet"
+        if not path.is_file():
+            return None
+        rows = read_table(path).to_pylist()
+        return rows[0] if rows else None
+
+    # --- writing -------------------------------------------------------------------------------------
+    @contextmanager
+    def locked(self, wait_s: float = DEFAULT_WAIT_S) -> Iterator[None]:
+        """Hold the catalogue's write lock (flock: released by the kernel when the holder dies, even by kill -9)."""
+        path = self.root / LOCK
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            deadline = time.monotonic() + wait_s
+            while True:
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                    break
+                except OSError as exc:
+                    if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN):
+                        raise CatalogError(f"cannot lock {path}: {exc.strerror}") from None
+                    if time.monotonic() >= deadline:
+                        holder = os.pread(fd, 200, 0).decode(errors="replace").strip() or "another process"
+                        raise CatalogError(
+                            f"{self.root}: another add is writing this catalogue ({holder}); waited {wait_s:g} s, "
+                            "nothing written: try again when it has finished"
+                        ) from None
+                    time.sleep(0.05)
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"pid {os.getpid()} since {time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())}".encode(), 0)
+            self._recover()
+            yield
+        finally:
+            os.close(fd)  # releases the lock
+
+    def _staging(self) -> Path:
+        d = self.root / STAGING
+        d.mkdir(exist_ok=True)
+        return d
+
+    def _recover(self) -> None:
+        """Complete an interrupted replacement (its journal) and remove what killed adds left in .staging."""
+        staging = self._staging()
+        for journal in sorted(staging.glob("replace-*.json")):
+            try:
+                j = json.loads(journal.read_text())
+                final, new, old = Path(j["final"]), Path(j["new"]), Path(j["old"])
+            except (OSError, ValueError, KeyError):
+                journal.unlink(missing_ok=True)
+                continue
+            if not final.exists() and new.exists():
+                os.rename(new, final)
+                log.info("completed the interrupted replacement of %s", final)
+            elif not final.exists() and old.exists():
+                os.rename(old, final)
+            journal.unlink()
+        for leftover in staging.iterdir():
+            if leftover.is_dir():
+                shutil.rmtree(leftover, ignore_errors=True)
+            else:
+                leftover.unlink(missing_ok=True)
+
+    def add(
+        self,
+        log_path: Path,
+        structure: str,
+        *,
+        images: Path | None = None,
+        detections: Sequence[Path] = (),
+        wait_s: float = DEFAULT_WAIT_S,
+    ) -> AddResult:
+        """Add one flight (see the module's doc); the catalogue is unchanged by any error."""
+        check_structure(structure)
+        ident = identify(log_path, images=images, detections=detections)
+        with self.locked(wait_s):
+            final = partition(self.root, structure, ident.flight)
+            old = self.flight_row(structure, ident.flight)
+            if old is not None and old.get("revision") == ident.revision:
+                return AddResult(structure, ident.flight, ident.revision, "unchanged", None, {}, final)
+            work = self._staging() / f"add-{uuid.uuid4().hex}"
+            part = work / "partition"
+            part.mkdir(parents=True)
+            try:
+                tables = collect(log_path, structure, ident, detections=detections, work_dir=work)
+                if old is not None:
+                    history = [*list(old.get("replaced_revisions") or []), str(old["revision"])]  # type: ignore[call-overload]
+                    tables = _with_history(tables, history)
+                rows = write_partition(part, tables)
+                final.parent.mkdir(parents=True, exist_ok=True)
+                if old is None:
+                    os.rename(part, final)
+                else:
+                    self._swap(final, part, work)
+                _fsync_dir(final.parent)
+            finally:
+                shutil.rmtree(work, ignore_errors=True)
+        return AddResult(
+            structure, ident.flight, ident.revision, "added" if old is None else "replaced",
+            None if old is None else str(old["revision"]), rows, final,
+        )  # fmt: skip
+
+    def _swap(self, final: Path, new: Path, work: Path) -> None:
+        if _exchange(new, final):
+            return  # `new` now holds the old partition, removed with `work`
+        old = work / "replaced"
+        journal = self._staging() / f"replace-{uuid.uuid4().hex}.json"
+        journal.write_text(json.dumps({"final": str(final), "new": str(new), "old": str(old)}))
+        _fsync_dir(journal.parent)
+        os.rename(final, old)
+        os.rename(new, final)
+        journal.unlink()
+
+
+def _with_history(t: FlightTables, history: list[str]) -> FlightTables:
+    flights = t.tables["flights"]
+    idx = flights.schema.get_field_index("replaced_revisions")
+    col = pa.array([history], type=flights.schema.field(idx).type)
+    tables = dict(t.tables)
+    tables["flights"] = flights.set_column(idx, flights.schema.field(idx), col)
+    return FlightTables(t.structure, t.flight, t.revision, tables)
+
+
+def write_partition(folder: Path, tables: FlightTables) -> dict[str, int]:
+    """Write every table of the flight into `folder`, fsynced, and read each back (rows and schema)."""
+    rows: dict[str, int] = {}
+    for name in TABLES:
+        table = tables.tables[name]
+        path = folder / f"{name}.parquet"
+        try:
+            pq.write_table(table, path, compression="zstd")
+            with path.open("rb") as f:
+                os.fsync(f.fileno())
+        except OSError as exc:
+            raise CatalogError(f"cannot write {path}: {exc.strerror or exc}") from None
+        back = read_table(path)
+        if back.num_rows != table.num_rows or back.schema.names != SCHEMAS[name].names:
+            raise CatalogError(f"{path} does not read back as written")
+        rows[name] = back.num_rows
+    _fsync_dir(folder)
+    return rows
+
+
+def read_table(path: Path) -> pa.Table:
+    """One catalogue file, its schema version checked (CatalogError naming both versions)."""
+    try:
+        meta = pq.read_metadata(path).metadata
+    except (OSError, pa.ArrowException) as exc:
+        raise CatalogError(f"{path}: not a readable Parquet file ({exc})") from None
+    table_version(meta, str(path))
+    return pq.read_table(path)
+
+
+def _fsync_dir(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+_RENAME_EXCHANGE = 2
+_AT_FDCWD = -100
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths in one step (Linux renameat2 RENAME_EXCHANGE); False where the system cannot.
+
+    By hand through ctypes because Python's os module has no renameat2."""
+    libc_name = ctypes.util.find_library("c")
+    if libc_name is None:
+        return False
+    libc = ctypes.CDLL(libc_name, use_errno=True)
+    fn = getattr(libc, "renameat2", None)
+    if fn is None:
+        return False
+    fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    rc = fn(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE)
+    if rc == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.EINVAL, errno.ENOSYS, errno.ENOTSUP):
+        return False
+    raise CatalogError(f"cannot replace {b}: {os.strerror(err)}")

@@ -1,0 +1,100 @@
+"""Atomic adds: kill -9 in the middle leaves the old partition or the whole new one; two adds at once."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import synth_logs as sl
+from conftest import SynthFlight, make_flight, snapshot
+
+from icgt.catalog.cli import add_flight
+from icgt.catalog.schema import TABLES
+from icgt.catalog.store import Catalog
+
+
+def _add_process(log: Path, cat: Path, *extra: str) -> subprocess.Popen[str]:
+    code = "import sys; from icgt.cli import main; sys.exit(main(sys.argv[1:]))"
+    args = [sys.executable, "-c", code, "-q", "catalog", "add", str(log), "--structure", "pier-7", "--catalog", str(cat)]
+    return subprocess.Popen([*args, *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for(cond: object, timeout_s: float = 60.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if cond():  # type: ignore[operator]
+            return True
+        time.sleep(0.002)
+    return False
+
+
+def _staged_files(cat: Path) -> list[Path]:
+    return list((cat / ".staging").glob("add-*/partition/*.parquet"))
+
+
+def test_kill_9_in_the_middle_of_an_add_leaves_no_partial_partition(flight_a: SynthFlight, tmp_path: Path) -> None:
+    cat = tmp_path / "cat"
+    first = add_flight(cat, flight_a.log, "pier-7")
+    before = snapshot(cat)
+    big = make_flight(tmp_path / "big", sl.Synth(n=6000, no_pose_every=9, shift_east_m=0.3), card=False)
+    # kill at three moments: while it reads the log, once the first staged file exists, once three do
+    moments = [
+        lambda: (cat / ".staging").is_dir() and any((cat / ".staging").glob("add-*")),
+        lambda: len(_staged_files(cat)) >= 1,
+        lambda: len(_staged_files(cat)) >= 3,
+    ]
+    killed = 0
+    for moment in moments:
+        proc = _add_process(big.log, cat)
+        try:
+            reached = _wait_for(lambda p=proc, m=moment: m() or p.poll() is not None)  # type: ignore[misc]
+            assert reached
+            if proc.poll() is None:
+                os.kill(proc.pid, signal.SIGKILL)
+                killed += 1
+        finally:
+            proc.wait()
+        after = snapshot(cat)
+        if proc.returncode == -signal.SIGKILL:
+            assert after == before, "a killed add changed the visible catalogue"
+        else:  # it finished before the kill: the whole new partition, nothing of the old
+            assert proc.returncode == 0 and after != before
+            break
+    assert killed >= 1
+    # the next add clears what the killed ones left and lands whole
+    res = add_flight(cat, big.log, "pier-7")
+    assert res.status == "replaced" and res.replaced == first.revision
+    assert not any((cat / ".staging").iterdir())
+    assert [len(pq.read_table(res.path / f"{t}.parquet")) for t in ("flights", "frames")] == [1, 6000]
+    assert sorted(p.name for p in res.path.iterdir()) == sorted(f"{t}.parquet" for t in TABLES)
+
+
+def test_two_adds_at_once_both_land(flight_a: SynthFlight, flight_b: SynthFlight, tmp_path: Path) -> None:
+    cat = tmp_path / "cat"
+    Catalog(cat, create=True)
+    procs = [_add_process(flight_a.log, cat), _add_process(flight_b.log, cat)]
+    outs = [p.communicate(timeout=120) for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outs
+    flights = sorted(pq.read_table(p / "flights.parquet")["flight"][0].as_py() for p in Catalog(cat).partitions())
+    assert flights == ["1234567-00c0ffee", "7654321-0badcafe"]
+
+
+def test_an_add_that_cannot_get_the_lock_is_refused_clearly(flight_a: SynthFlight, tmp_path: Path) -> None:
+    cat = tmp_path / "cat"
+    add_flight(cat, flight_b_log := flight_a.log, "pier-7")
+    before = snapshot(cat)
+    moved = make_flight(tmp_path / "moved", sl.regeotagged(flight_a.synth), card=False)
+    with Catalog(cat).locked():
+        proc = _add_process(moved.log, cat, "--wait-s", "0.2")
+        out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 1, (out, err)
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("icgt: ") and "another add is writing this catalogue" in lines[0]
+    assert f"pid {os.getpid()}" in lines[0]
+    assert snapshot(cat) == before
+    assert add_flight(cat, flight_b_log, "pier-7").status == "unchanged"

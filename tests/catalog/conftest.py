@@ -11,9 +11,9 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-import synth_logs as sl  # noqa: E402
+import synth_logs as sl
 
-from icgt.geotag import FrameRecord  # noqa: E402
+from icgt.geotag import FrameRecord
 
 
 @dataclass

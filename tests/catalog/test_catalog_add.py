@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
-from mcap.reader import make_reader
 import synth_logs as sl
 from conftest import SynthFlight, make_flight, snapshot
+from mcap.reader import make_reader
 
 import icgt
 from icgt.catalog import CatalogError

@@ -20,7 +20,19 @@ from icgt.catalog.store import Catalog
 
 def _add_process(log: Path, cat: Path, *extra: str) -> subprocess.Popen[str]:
     code = "import sys; from icgt.cli import main; sys.exit(main(sys.argv[1:]))"
-    args = [sys.executable, "-c", code, "-q", "catalog", "add", str(log), "--structure", "pier-7", "--catalog", str(cat)]
+    args = [
+        sys.executable,
+        "-c",
+        code,
+        "-q",
+        "catalog",
+        "add",
+        str(log),
+        "--structure",
+        "pier-7",
+        "--catalog",
+        str(cat),
+    ]
     return subprocess.Popen([*args, *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 

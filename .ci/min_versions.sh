@@ -12,12 +12,12 @@ if [ ! -f "$STAMP" ] || [ host/pyproject.toml -nt "$STAMP" ]; then
   rm -rf "$VENV"
   "$PYTHON" -m venv "$VENV"
   "$VENV/bin/pip" install --quiet --upgrade pip
-  # "name>=x.y" of [project].dependencies -> "name==x.y"
+  # "name>=x.y" (or a pin "name==x.y") of [project].dependencies -> "name==x.y"
   mapfile -t PINS < <("$VENV/bin/python" - <<'PY'
 import re, tomllib
 deps = tomllib.load(open("host/pyproject.toml", "rb"))["project"]["dependencies"]
 for d in deps:
-    m = re.fullmatch(r"\s*([A-Za-z0-9_.\-\[\]]+)\s*>=\s*([0-9][^,;\s]*)\s*", d)
+    m = re.fullmatch(r"\s*([A-Za-z0-9_.\-\[\]]+)\s*(?:>=|==)\s*([0-9][^,;\s]*)\s*", d)
     if not m:
         raise SystemExit(f"dependency without a plain lower bound: {d!r}")
     print(f"{m.group(1)}=={m.group(2)}")

@@ -13,7 +13,8 @@ if [ ! -f "$STAMP" ] || [ host/pyproject.toml -nt "$STAMP" ]; then
   "$PYTHON" -m venv "$VENV"
   "$VENV/bin/pip" install --quiet --upgrade pip
   # "name>=x.y" (or a pin "name==x.y") of [project].dependencies -> "name==x.y"
-  mapfile -t PINS < <("$VENV/bin/python" - <<'PY'
+  # (written to a file first: a failure inside a process substitution would not stop the script)
+  "$VENV/bin/python" - > "$VENV/pins.txt" <<'PY'
 import re, tomllib
 deps = tomllib.load(open("host/pyproject.toml", "rb"))["project"]["dependencies"]
 for d in deps:
@@ -22,7 +23,7 @@ for d in deps:
         raise SystemExit(f"dependency without a plain lower bound: {d!r}")
     print(f"{m.group(1)}=={m.group(2)}")
 PY
-  )
+  mapfile -t PINS < "$VENV/pins.txt"
   echo "min-versions: ${PINS[*]}"
   "$VENV/bin/pip" install --quiet "${PINS[@]}"
   "$VENV/bin/pip" install --quiet --no-deps -e host

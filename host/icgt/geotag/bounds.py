@@ -24,10 +24,12 @@ import numpy as np
 __all__ = [
     "AXIS_95",
     "RADIAL_95",
+    "InterpolationParts",
     "MotionAllowance",
     "SourceAccuracy",
     "extrapolation_bound",
     "interpolation_bound",
+    "interpolation_parts",
     "quintic_correction",
     "source_accuracy",
 ]
@@ -108,6 +110,62 @@ def _h_v(vec: np.ndarray) -> tuple[float, float]:
     return float(math.hypot(float(vec[0]), float(vec[1]))), abs(float(vec[2]))
 
 
+@dataclass(frozen=True)
+class InterpolationParts:
+    """`interpolation_bound`'s three parts [m], each (horizontal, vertical).
+
+    ``seen``: what the samples show (the quintic correction, or the bend allowance, and the change of
+    acceleration between the ends placed anywhere inside the span); ``unexplained``: the
+    velocity change the end accelerations do not explain, at its worst placed inside the span (one impulse at
+    the instant); ``unseen``: the allowance A for what leaves no trace at either end."""
+
+    seen: tuple[float, float]
+    unexplained: tuple[float, float]
+    unseen: tuple[float, float]
+    unexplained_m_s2: tuple[float, float]  # the unexplained mean acceleration itself
+
+    def total(self) -> tuple[float, float]:
+        return (
+            self.seen[0] + self.unexplained[0] + self.unseen[0],
+            self.seen[1] + self.unexplained[1] + self.unseen[1],
+        )
+
+
+def interpolation_parts(
+    span_s: float,
+    f: float,
+    correction_enu_m: np.ndarray | None,
+    dv_enu_m_s: np.ndarray,
+    allowance: MotionAllowance,
+    unexplained_accel_m_s2: np.ndarray | None = None,
+    accel_change_m_s2: np.ndarray | None = None,
+) -> InterpolationParts:
+    """The parts of the 95 % bound on the cubic Hermite's error at fraction f of a span (`interpolation_bound`).
+
+    ``accel_change_m_s2``: a1 - a0, the end accelerations' difference. The quintic correction has it change
+    smoothly across the span; a bank rolled in at some instant inside it departs from that by at most
+    |a1 - a0| all along, hence |a1 - a0| T^2 u (1 - u) / 4 more (the bound of the unseen part, with that A)."""
+    shape = f * (1.0 - f)
+    unseen = span_s**2 * shape / 4.0
+    if correction_enu_m is not None:
+        seen_h, seen_v = _h_v(correction_enu_m)
+    else:
+        dv_h, dv_v = _h_v(dv_enu_m_s)
+        seen_h, seen_v = dv_h * span_s * shape / 2.0, dv_v * span_s * shape / 2.0
+    if accel_change_m_s2 is not None:
+        da_h, da_v = _h_v(accel_change_m_s2)
+        seen_h, seen_v = seen_h + da_h * unseen, seen_v + da_v * unseen
+    m_h, m_v = _h_v(unexplained_accel_m_s2) if unexplained_accel_m_s2 is not None else (0.0, 0.0)
+    # The unexplained velocity change m T as one impulse at the instant is the worst placing: with the ends'
+    # positions and velocities matched, 2 m T^2 u (1 - u) / 4 (a smooth manoeuvre of mean m peaks near 2 m).
+    return InterpolationParts(
+        (seen_h, seen_v),
+        (2.0 * m_h * unseen, 2.0 * m_v * unseen),
+        (allowance.unseen_accel_h_m_s2 * unseen, allowance.unseen_accel_v_m_s2 * unseen),
+        (m_h, m_v),
+    )
+
+
 def interpolation_bound(
     span_s: float,
     f: float,
@@ -127,19 +185,7 @@ def interpolation_bound(
     A is the allowance plus ``unexplained_accel_m_s2``: the part of the gap's mean acceleration (v1 - v0) / T
     that the end accelerations do not explain, twice over (a braking or a bank that began and ended inside the
     gap: its profile is unknown; a smooth one peaks near twice its mean)."""
-    shape = f * (1.0 - f)
-    if correction_enu_m is not None:
-        seen_h, seen_v = _h_v(correction_enu_m)
-    else:
-        dv_h, dv_v = _h_v(dv_enu_m_s)
-        seen_h, seen_v = dv_h * span_s * shape / 2.0, dv_v * span_s * shape / 2.0
-    unseen = span_s**2 * shape / 4.0
-    # A smooth manoeuvre of mean acceleration m peaks near 2 m (a smootherstep braking at 1.875 m): twice it
-    extra_h, extra_v = _h_v(2.0 * unexplained_accel_m_s2) if unexplained_accel_m_s2 is not None else (0.0, 0.0)
-    return (
-        seen_h + (allowance.unseen_accel_h_m_s2 + extra_h) * unseen,
-        seen_v + (allowance.unseen_accel_v_m_s2 + extra_v) * unseen,
-    )
+    return interpolation_parts(span_s, f, correction_enu_m, dv_enu_m_s, allowance, unexplained_accel_m_s2).total()
 
 
 def extrapolation_bound(

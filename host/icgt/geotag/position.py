@@ -36,8 +36,15 @@ from icgt.geotag.bounds import (
     SourceAccuracy,
     extrapolation_bound,
     interpolation_bound,
-    quintic_correction,
     source_accuracy,
+)
+from icgt.geotag.motion import (
+    LearnedScale,
+    hermite,
+    hermite_velocity,
+    learn_motion_scale,
+    motion_interpolated,
+    scaled_motion,
 )
 from icgt.mavlink.telemetry import FusedPositionSample, GpsSample, LocalPositionSample, TelemetryStore
 
@@ -55,6 +62,13 @@ class PositionRules:
     max_interpolation_gap_s: float = 10.0
     max_extrapolation_m: float = 1.0
     allowance: MotionAllowance = field(default_factory=MotionAllowance)
+    # Across a span longer than learn_min_span_s, the motion bound is scaled by what the flight's own spans
+    # within learn_window_s of the gap needed (`motion.learn_motion_scale`), times learn_margin (few spans
+    # estimate a 95 % quantile), never below learned_scale_floor; learn_window_s 0: the model as it is.
+    learn_window_s: float = 30.0
+    learn_min_span_s: float = 0.5
+    learn_margin: float = 1.25
+    learned_scale_floor: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -108,25 +122,6 @@ def _local_velocity_enu(s: LocalPositionSample) -> np.ndarray:
     return np.array([s.vy_mps, s.vx_mps, -s.vz_mps])
 
 
-def _hermite(p0: np.ndarray, v0: np.ndarray, p1: np.ndarray, v1: np.ndarray, span_s: float, f: float) -> np.ndarray:
-    f2, f3 = f * f, f * f * f
-    return (
-        (2 * f3 - 3 * f2 + 1) * p0 + (f3 - 2 * f2 + f) * span_s * v0 + (-2 * f3 + 3 * f2) * p1 + (f3 - f2) * span_s * v1
-    )
-
-
-def _hermite_velocity(
-    p0: np.ndarray, v0: np.ndarray, p1: np.ndarray, v1: np.ndarray, span_s: float, f: float
-) -> np.ndarray:
-    f2 = f * f
-    return (
-        (6 * f2 - 6 * f) * p0 / span_s
-        + (3 * f2 - 4 * f + 1) * v0
-        + (-6 * f2 + 6 * f) * p1 / span_s
-        + (3 * f2 - 2 * f) * v1
-    )
-
-
 def _accel(v_a: np.ndarray, t_a_us: int, v_b: np.ndarray, t_b_us: int) -> np.ndarray | None:
     dt_us = t_b_us - t_a_us
     if dt_us <= 0 or dt_us > _ACCEL_WINDOW_US:
@@ -150,29 +145,63 @@ def _fused_accel_at(tm: TelemetryStore, s: FusedPositionSample, *, outside: int)
     return _accel(_velocity_enu(s), s.boot_us, _velocity_enu(n), n.boot_us)
 
 
-def _motion_interpolated(
-    p0: np.ndarray,
-    v0: np.ndarray,
-    a0: np.ndarray | None,
-    p1: np.ndarray,
-    v1: np.ndarray,
-    a1: np.ndarray | None,
-    span_s: float,
-    f: float,
+# The learned scale of a span, by (store, span ends, the window's samples): every frame in one gap asks.
+_LEARNED: dict[tuple[int, int, int, int, int, int], LearnedScale | None] = {}
+_LEARNED_KEPT = 64
+
+
+def _motion_scale(
+    tm: TelemetryStore,
+    frame: LocalFrame,
+    before: FusedPositionSample,
+    after: FusedPositionSample,
+    src: SourceAccuracy,
     rules: PositionRules,
-) -> tuple[float, float]:
-    correction = None
-    mean = (v1 - v0) / span_s
-    unexplained = mean
-    if a0 is not None or a1 is not None:
-        # One end's acceleration unknown: the gap's mean acceleration stands in for it (a linear change)
-        a0e = a0 if a0 is not None else 2.0 * mean - (a1 if a1 is not None else mean)
-        a1e = a1 if a1 is not None else 2.0 * mean - a0e
-        correction = quintic_correction(p0, v0, a0e, p1, v1, a1e, span_s, f)
-        # what the known ends do not explain (one end known: as if the other were like it)
-        known = [a for a in (a0, a1) if a is not None]
-        unexplained = mean - sum(known) / len(known)
-    return interpolation_bound(span_s, f, correction, v1 - v0, rules.allowance, unexplained)
+) -> LearnedScale | None:
+    """What the flight's spans like (before, after) needed (`motion.learn_motion_scale`), when the span is long
+    enough to hide a manoeuvre and the window around it holds enough of them; else None (the model as it is)."""
+    span_s = (after.boot_us - before.boot_us) / 1e6
+    if rules.learn_window_s <= 0 or span_s <= rules.learn_min_span_s:
+        return None
+    # A flight with many gaps close together leaves few spans as long as this one near it: look farther
+    for window_s in (rules.learn_window_s, 4.0 * rules.learn_window_s):
+        learned = _learn_in(tm, frame, before, after, int(window_s * 1e6), span_s, src, rules)
+        if learned is not None:
+            return learned
+    return None
+
+
+def _learn_in(
+    tm: TelemetryStore,
+    frame: LocalFrame,
+    before: FusedPositionSample,
+    after: FusedPositionSample,
+    w_us: int,
+    span_s: float,
+    src: SourceAccuracy,
+    rules: PositionRules,
+) -> LearnedScale | None:
+    around = [
+        s
+        for s in tm.fused.between(before.boot_us - w_us, after.boot_us + w_us)
+        if _usable(s) and not before.boot_us < s.boot_us < after.boot_us
+    ]
+    if len(around) < 4:
+        return None
+    key = (id(tm), before.boot_us, after.boot_us, around[0].boot_us, around[-1].boot_us, len(around))
+    if key in _LEARNED:
+        return _LEARNED[key]
+    t_s = np.array([s.boot_us for s in around], dtype=float) / 1e6
+    lat, lon, alt = (
+        np.array([getattr(s, k) for s in around], dtype=float) for k in ("lat_deg", "lon_deg", "alt_msl_m")
+    )
+    p = np.asarray(frame.geodetic_to_enu(lat, lon, alt), dtype=float)
+    v = np.array([_velocity_enu(s) for s in around], dtype=float)
+    learned = learn_motion_scale(t_s, p, v, span_s, rules.allowance, src.horizontal_m, src.vertical_m)
+    if len(_LEARNED) >= _LEARNED_KEPT:
+        _LEARNED.pop(next(iter(_LEARNED)))
+    _LEARNED[key] = learned
+    return learned
 
 
 @dataclass(frozen=True)
@@ -203,7 +232,7 @@ def _local_at(tm: TelemetryStore, t_us: float, rules: PositionRules) -> _Local |
         # chord's: the Hermite's motion bound plus how far the chord is from the Hermite.
         h, v = interpolation_bound(span_s, f, None, vb - va, rules.allowance, (vb - va) / span_s)
         chord = a + (b - a) * f
-        cubic = _hermite(a, va, b, vb, span_s, f)
+        cubic = hermite(a, va, b, vb, span_s, f)
         d = cubic - chord
         return _Local(
             chord,
@@ -265,10 +294,12 @@ def estimate_position(
             v0, v1 = _velocity_enu(before), _velocity_enu(after)
             a0 = _fused_accel_at(tm, before, outside=-1)
             a1 = _fused_accel_at(tm, after, outside=+1)
-            h, v = _motion_interpolated(p0, v0, a0, p1, v1, a1, span_s, f, rules)
+            parts = motion_interpolated(p0, v0, a0, p1, v1, a1, span_s, f, rules.allowance)
+            learned = _motion_scale(tm, frame, before, after, src, rules)
+            h, v = scaled_motion(parts, learned, rules.learn_margin, rules.learned_scale_floor)
             candidates.append(
                 PositionEstimate(
-                    _hermite(p0, v0, p1, v1, span_s, f),
+                    hermite(p0, v0, p1, v1, span_s, f),
                     "gps",
                     gps,
                     (t_us - before.boot_us) / 1000.0,
@@ -277,7 +308,7 @@ def estimate_position(
                     h,
                     v,
                     False,
-                    _hermite_velocity(p0, v0, p1, v1, span_s, f),
+                    hermite_velocity(p0, v0, p1, v1, span_s, f),
                 )
             )
             if span_us <= rules.max_gps_gap_s * 1e6:
@@ -310,7 +341,10 @@ def estimate_position(
                 )
             )
     if any(c.rule == "gps" for c in candidates):
-        return min(candidates, key=lambda c: c.horizontal_m + c.vertical_m)  # interpolation knows more than a guess
+        # Interpolation knows more than a guess: an extrapolated local position never wins over it (its bound
+        # is sized by an allowance, the interpolation's by samples on both sides)
+        measured = [c for c in candidates if not c.extrapolated]
+        return min(measured, key=lambda c: c.horizontal_m + c.vertical_m)
     dt_s = gap_b / 1000.0
     h, v = extrapolation_bound(dt_s, _fused_accel_at(tm, anchor, outside=-1), rules.allowance, rules.max_accel_m_s2)
     if math.hypot(h, v) <= rules.max_extrapolation_m:

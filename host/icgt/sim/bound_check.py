@@ -15,6 +15,7 @@ recompute with look-ahead): the sample after a gap is in when the frame is place
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal, Protocol
 
@@ -93,6 +94,10 @@ class TelemetryPlan:
     h_acc_m: float = 0.02
     v_acc_m: float = 0.03
     attitude_noise_deg: float = 0.3  # per axis
+    # A receiver's error is mostly slow (multipath, atmosphere: correlated over minutes), a little of it white;
+    # this fraction of the variance is white, the rest a first-order Gauss-Markov process of position_tau_s.
+    position_white_fraction: float = 0.2
+    position_tau_s: float = 20.0
     clock_bound_us: float = 300.0  # host -> autopilot bound the clock claims (its error is drawn within it)
     fps: float = 5.0
     lever_arm_body_m: tuple[float, float, float] = (0.30, 0.0, 0.10)
@@ -164,6 +169,27 @@ def _small_rotation(rng: np.random.Generator, sigma_deg: float) -> np.ndarray:
     return np.concatenate([[math.cos(a / 2)], math.sin(a / 2) * v / a])
 
 
+def _position_noise(
+    duration_s: float, plan: TelemetryPlan, sigma: np.ndarray, rng: np.random.Generator
+) -> Callable[[float], np.ndarray]:
+    """The receiver's slow error [m] (ENU) at any time: a Gauss-Markov sequence on a 0.1 s grid, interpolated."""
+    step = 0.1
+    n = math.ceil(duration_s / step) + 2
+    rho = math.exp(-step / plan.position_tau_s)
+    slow_sigma = sigma * math.sqrt(1.0 - plan.position_white_fraction)
+    seq = np.empty((n, 3))
+    seq[0] = rng.normal(size=3) * slow_sigma
+    kicks = rng.normal(size=(n, 3)) * slow_sigma * math.sqrt(1.0 - rho * rho)
+    for k in range(1, n):
+        seq[k] = rho * seq[k - 1] + kicks[k]
+    grid = np.arange(n) * step
+
+    def at(t_s: float) -> np.ndarray:
+        return np.array([np.interp(t_s, grid, seq[:, a]) for a in range(3)])
+
+    return at
+
+
 def _messages(
     flight: FlightTruth, plan: TelemetryPlan, gaps: list[Gap], rng: np.random.Generator, frame: LocalFrame
 ) -> list[tuple[float, object]]:
@@ -179,10 +205,14 @@ def _messages(
         lat, lon, h = frame.enu_to_geodetic(enu)
         return round(float(lat) * 1e7), round(float(lon) * 1e7), round(float(h) * 1000.0)
 
+    sigma = np.array([sigma_h, sigma_h, plan.v_acc_m])
+    noise_at = _position_noise(flight.duration_s, plan, sigma, rng)
+    white = math.sqrt(plan.position_white_fraction)
+
     t_gps = stamps(plan.gps_hz)
     st = flight.state(t_gps)
     for k, t in enumerate(t_gps):
-        pos = st.position_enu_m[k] + rng.normal(size=3) * np.array([sigma_h, sigma_h, plan.v_acc_m])
+        pos = st.position_enu_m[k] + noise_at(float(t)) + rng.normal(size=3) * sigma * white
         lat, lon, alt = geodetic(pos)
         msg = mav.gps_raw_int_encode(
             int(_BOOT0_US + t * 1e6), plan.fix_type, lat, lon, alt, 60, 90, 0, 0, 22, alt,
@@ -194,8 +224,7 @@ def _messages(
     for k, t in enumerate(t_fused):
         if any(g.holds(float(t)) for g in gaps):
             continue
-        noise = rng.normal(size=3) * np.array([sigma_h, sigma_h, plan.v_acc_m])
-        pos = st.position_enu_m[k] + noise
+        pos = st.position_enu_m[k] + noise_at(float(t)) + rng.normal(size=3) * sigma * white
         vel = st.velocity_enu_m_s[k]
         lat, lon, alt = geodetic(pos)
         boot_ms = int((_BOOT0_US + t * 1e6) // 1000)

@@ -8,11 +8,17 @@ same way; climbs ramp the vertical speed. Attitude is that of a coordinated flig
 the bank, pitch = the flight-path angle (no angle of attack or sideslip). Frames as in `icgt.sim.trajectory`:
 ENU positions [m], body->NED quaternions (w first), body rates in FRD [rad/s].
 
+A real vehicle does not fly the plan's smooth curves: turbulence pushes it and its autopilot pulls it back.
+`Turbulence` adds that as a random, smooth ground-velocity perturbation (`turbulence_offsets`); the
+flights of `vtol_survey` and `random_flight` carry light turbulence unless told otherwise. Without it, a
+gap in the telemetry hides nothing that a cubic through its ends does not already show.
+
 `SurveyFlight.state(t)` evaluates the flight at any times from a dense integration (``step_s``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Literal
@@ -21,9 +27,65 @@ import numpy as np
 
 from icgt.geodesy import FloatArray, q_from_euler_zyx
 
-__all__ = ["Leg", "SurveyFlight", "SurveyState", "random_flight", "vtol_survey"]
+__all__ = [
+    "LIGHT_TURBULENCE",
+    "Leg",
+    "SurveyFlight",
+    "SurveyState",
+    "Turbulence",
+    "random_flight",
+    "turbulence_offsets",
+    "vtol_survey",
+]
 
 GRAVITY_M_S2 = 9.80665
+
+
+@dataclass(frozen=True)
+class Turbulence:
+    """The vehicle's ground-velocity response to turbulence under its autopilot (1-sigma per axis).
+
+    A sum of ``components`` sinusoids per axis with random phases, their powers drawn from a band-pass
+    spectrum: a second-order Gauss-Markov process of correlation time ``correlation_s`` (the gusts as the
+    airframe follows them), times a high-pass of ``hold_s`` (the autopilot holding its track and altitude,
+    so the position does not wander off). Seeded: the same flight has the same gusts."""
+
+    sigma_h_m_s: float = 0.4
+    sigma_v_m_s: float = 0.25
+    correlation_s: float = 2.0
+    hold_s: float = 10.0
+    components: int = 48
+    seed: int = 0
+
+
+# Dryden "light" turbulence at 60 m has gust velocities of about 1 m/s (MIL-F-8785C, W20 = 15 kn); a small
+# VTOL under its autopilot follows part of that: ground-velocity deviations of a few decimetres per second,
+# accelerations around 0.2 m/s^2 (sigma_v / correlation_s).
+LIGHT_TURBULENCE = Turbulence()
+
+
+def turbulence_offsets(turb: Turbulence, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """(position [m], velocity [m/s], acceleration [m/s^2]) perturbations, ENU, shape (len(t), 3).
+
+    Sinusoids rather than a filtered noise sequence: position, velocity and acceleration are exact
+    derivatives of one another at any time, with no integration error between the samples' instants."""
+    rng = np.random.default_rng([32, turb.seed])
+    tau, hold = turb.correlation_s, turb.hold_s
+    edges = np.geomspace(0.02 / tau, 20.0 / tau, turb.components + 1)
+    pos = np.zeros((len(t), 3))
+    vel = np.zeros((len(t), 3))
+    acc = np.zeros((len(t), 3))
+    for axis, sigma in enumerate((turb.sigma_h_m_s, turb.sigma_h_m_s, turb.sigma_v_m_s)):
+        w = rng.uniform(edges[:-1], edges[1:])  # one frequency in each band [rad/s]
+        psd = (w * hold) ** 2 / (1.0 + (w * hold) ** 2) / (1.0 + (w * tau) ** 2) ** 2
+        power = psd * np.diff(edges)
+        amp = sigma * np.sqrt(2.0 * power / power.sum())  # sum of amp^2 / 2 = sigma^2
+        phase = rng.uniform(0.0, 2.0 * math.pi, len(w))
+        arg = np.outer(t, w) + phase
+        pos[:, axis] = (np.sin(arg) - np.sin(phase)) @ (amp / w)
+        vel[:, axis] = np.cos(arg) @ amp
+        acc[:, axis] = -np.sin(arg) @ (amp * w)
+    return pos, vel, acc
 
 
 @dataclass(frozen=True)
@@ -74,6 +136,7 @@ class SurveyFlight:
         start_enu_m: tuple[float, float, float] = (0.0, 0.0, 60.0),
         roll_s: float = 1.0,
         step_s: float = 0.002,
+        turbulence: Turbulence | None = None,
     ) -> None:
         self.legs = list(legs)
         self.segments: list[tuple[str, float, float]] = []  # (kind, start [s], end [s])
@@ -125,10 +188,15 @@ class SurveyFlight:
         pos = np.asarray(start_enu_m) + np.concatenate(
             [np.zeros((1, 3)), np.cumsum(0.5 * (vel[1:] + vel[:-1]) * dt[:, None], axis=0)]
         )
+        acc = np.gradient(vel, t, axis=0)
+        self.turbulence = turbulence
+        if turbulence is not None:
+            d_pos, d_vel, d_acc = turbulence_offsets(turbulence, t)
+            pos, vel, acc = pos + d_pos, vel + d_vel, acc + d_acc
         self._t = t
         self._pos = pos
         self._vel = vel
-        self._acc = np.gradient(vel, t, axis=0)
+        self._acc = acc
         self._heading = heading
         self._bank = np.arctan2(yaw_rate * speed, GRAVITY_M_S2)
         self._pitch = np.arctan2(climb, speed)
@@ -163,7 +231,7 @@ class SurveyFlight:
         )
 
 
-def vtol_survey() -> SurveyFlight:
+def vtol_survey(turbulence: Turbulence | None = LIGHT_TURBULENCE) -> SurveyFlight:
     """A lawn-mower survey of a long bridge by a VTOL in forward flight (the issue's flight: 24 m/s, a 90 deg
     turn in about 3.4 s at 35 deg of bank): straights, 180 and 90 deg turns, a speed-up, a climb, a slow-down."""
     return SurveyFlight(
@@ -182,11 +250,15 @@ def vtol_survey() -> SurveyFlight:
         ],
         speed_m_s=21.0,
         heading_deg=90.0,
+        turbulence=turbulence,
     )
 
 
-def random_flight(rng: np.random.Generator, duration_s: float = 60.0) -> SurveyFlight:
-    """Random legs (turns 30-180 deg at 15-40 deg of bank, speed changes, climbs) for property tests."""
+def random_flight(
+    rng: np.random.Generator, duration_s: float = 60.0, turbulence: Turbulence | None = LIGHT_TURBULENCE
+) -> SurveyFlight:
+    """Random legs (turns 30-180 deg at 15-40 deg of bank, speed changes, climbs) for property tests; the
+    turbulence's seed is drawn from ``rng`` too."""
     legs: list[Leg] = [Leg("straight", float(rng.uniform(4.0, 8.0)))]
     total = legs[0].duration_s
     while total < duration_s:
@@ -207,4 +279,7 @@ def random_flight(rng: np.random.Generator, duration_s: float = 60.0) -> SurveyF
         total += max(leg.duration_s, 5.0)
     legs.append(Leg("climb", 3.0, climb_m_s=0.0))
     legs.append(Leg("straight", 6.0))
-    return SurveyFlight(legs, speed_m_s=float(rng.uniform(20.0, 25.0)), heading_deg=float(rng.uniform(0.0, 360.0)))
+    speed, heading = float(rng.uniform(20.0, 25.0)), float(rng.uniform(0.0, 360.0))
+    if turbulence is not None:
+        turbulence = dataclasses.replace(turbulence, seed=int(rng.integers(1 << 31)))
+    return SurveyFlight(legs, speed_m_s=speed, heading_deg=heading, turbulence=turbulence)

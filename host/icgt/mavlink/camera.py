@@ -35,6 +35,10 @@ confirmation). It gets the first ACK again, not a second photo. A first transmis
 that reuses a sequence number after that window is a new command (a ground station that restarted, or a
 second client with the same ids, counts from 1 again) and is executed.
 
+Settings: with ``CameraConfig.settings``, CAMERA_INFORMATION names a camera definition file served over
+MAVLink FTP and the parameters are read and set with PARAM_EXT (`icgt.mavlink.camera_settings`); those
+messages are handled on the worker too.
+
 Images: see `icgt.mavlink.camera_images` (indices, the poor-pose policy, history, re-requests of one, a
 range or all images, sent paced at ``resend_rate_hz``).
 """

@@ -184,6 +184,14 @@ def test_settings_set_through_mavsdk_are_read_back_and_a_refused_one_is_kept(ses
     assert float(session.after_set["ICGT_FOCUS_LEAD"]) == pytest.approx(0.4, abs=1e-6)
     assert session.refused  # MAVSDK got PARAM_EXT_ACK FAILED
     assert session.after_refusal["ICGT_SHUTTER_PW"] == session.initial["ICGT_SHUTTER_PW"]
+    assert session.mcap is not None  # the flight's log says who set what, and why one was refused
+    said = [d["message"] for _, d in read(session.mcap).messages(layout.LOG) if "camera setting" in d["message"]]
+    assert [m.split(" (")[0] for m in said[:3]] == [
+        "camera setting ICGT_TRIG_MODE = 1 from 245:190",
+        "camera setting ICGT_BURST = 0.6 s from 245:190",
+        "camera setting ICGT_FOCUS_LEAD = 0.4 s from 245:190",
+    ]
+    assert "ICGT_SHUTTER_PW = 0.9" in said[3] and "pulse_vs_interval" in said[3]
 
 
 def test_the_device_shoots_as_the_settings_say(session: Session) -> None:

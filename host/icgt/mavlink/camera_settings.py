@@ -168,5 +168,6 @@ class SettingsService:
             self._ack(p, mavlink2.PARAM_ACK_FAILED)
             return
         self.counts["settings_set"] += 1
-        log.info("camera setting %s = %g%s from %s", name, value, f" {p.unit}" if p.unit else "", who)
+        unit = f" {p.unit}" if p.unit else ""
+        log.info("camera setting %s = %g%s from %s (in force from the next capture start)", name, value, unit, who)
         self._ack(p, mavlink2.PARAM_ACK_ACCEPTED)

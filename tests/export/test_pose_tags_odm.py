@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -42,8 +43,11 @@ DJI_XMP = (
 )
 # DJI X3-style packet: the Description is about "DJI Meta Data", and a second one holds Camera Raw settings (crs),
 # which ExifTool keeps in a Description of its own when it rewrites the packet.
+XPACKET_BEGIN = "<?xpacket begin='\ufeff' id='W5M0MpCehiHzreSzNTczkc9d'?>"  # as cameras write it
+XPACKET_END = "<?xpacket end='w'?>"
 DJI_X3_XMP = (
-    '<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
+    XPACKET_BEGIN
+    + '<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
     '<rdf:Description rdf:about="DJI Meta Data" xmlns:tiff="http://ns.adobe.com/tiff/1.0/" '
     'xmlns:dc="http://purl.org/dc/elements/1.1/" xmlns:drone-dji="http://www.dji.com/drone-dji/1.0/" '
     'tiff:Make="DJI" drone-dji:AbsoluteAltitude="+{alt:.2f}" drone-dji:RelativeAltitude="+20.100" '
@@ -52,14 +56,16 @@ DJI_X3_XMP = (
     "<dc:format>image/jpg</dc:format></rdf:Description>"
     '<rdf:Description rdf:about="DJI Meta Data" xmlns:crs="http://ns.adobe.com/camera-raw-settings/1.0/" '
     'crs:Version="7.0" crs:HasSettings="False" crs:HasCrop="False" crs:AlreadyApplied="False"/>'
-    "</rdf:RDF></x:xmpmeta>"
+    "</rdf:RDF></x:xmpmeta>" + " " * 200 + XPACKET_END
 )
 # A survey camera's packet that repeats a property in one Description (ExifTool: "[Minor] Duplicate XMP property")
 DUPLICATE_XMP = (
-    '<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
+    XPACKET_BEGIN
+    + '<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
     '<rdf:Description rdf:about="" xmlns:Camera="http://pix4d.com/camera/1.0/">'
     "<Camera:Yaw>10.5</Camera:Yaw><Camera:Pitch>3.0</Camera:Pitch><Camera:Roll>-2.0</Camera:Roll>"
     "<Camera:BandName>RGB</Camera:BandName><Camera:Yaw>10.5</Camera:Yaw></rdf:Description></rdf:RDF></x:xmpmeta>"
+    + XPACKET_END
 )
 SENSEFLY_XMP = (
     '<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
@@ -111,6 +117,7 @@ def exported(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, 
             name = f"{kind.upper()}_{seq:04d}.JPG"
             pairs.append((jpeg(card / name, make, xmp), f))
             frames[name] = f
+    (out / "card").symlink_to(card)
     problems = ProblemLog()
     items = prepare_items(pairs, None, problems)
     assert write_geotagged_copies(items, out / "images", problems, images_root=card) == len(pairs)
@@ -208,3 +215,45 @@ def test_camera_xmp_defects_are_tolerated_and_said(exported: tuple[Path, dict[st
             assert desc["@crs:Version"] == "7.0" and desc.get("@dc:format", desc.get("dc:format")) == "image/jpg"
             assert desc["@rdf:about"] == "DJI Meta Data"
     assert not [p for p in problems if p.severity == "error"]
+
+
+def _exiftool_view(*paths: Path) -> list[dict[str, Any]]:
+    """ExifTool's own reading of each file: every tag by its group (-G1), each warning once (-a, copy numbers)."""
+    import exiftool  # PyExifTool
+
+    with exiftool.ExifToolHelper(common_args=["-a", "-G1:4", "-n"]) as et:
+        return list(et.execute_json("-validate", "-warning", "-all", *map(str, paths)))
+
+
+def _warnings(tags: dict[str, Any]) -> set[str]:
+    return {str(v) for k, v in tags.items() if k.endswith(":Warning")}
+
+
+def test_exiftool_reads_every_copy_without_a_new_defect(
+    exported: tuple[Path, dict[str, FrameRecord], ProblemLog],
+) -> None:
+    """ExifTool, the tool users check files with, on the written copies (not our reader): the survey camera's
+    repeated property is gone and nothing it warns of in a copy was not already in the camera's file (the
+    merged packet keeps its xpacket wrapper); it reads our pose and the camera's other properties back."""
+    out, frames, _ = exported
+    names = sorted(frames)
+    views = _exiftool_view(*(out / "card" / n for n in names), *(out / "images" / n for n in names))
+    assert len(views) == 2 * len(names)
+    original = dict(zip(names, views[: len(names)], strict=True))
+    copy = dict(zip(names, views[len(names) :], strict=True))
+    for name in names:
+        f, got = frames[name], copy[name]
+        assert _warnings(got) <= _warnings(original[name]), (name, _warnings(got) - _warnings(original[name]))
+        assert not any("Duplicate XMP" in w for w in _warnings(got)), name
+        assert got["Composite:GPSLatitude"] == pytest.approx(f.lat_deg, abs=1e-8)
+        assert got["Composite:GPSLongitude"] == pytest.approx(f.lon_deg, abs=1e-8)
+        assert got["XMP-icgt:FrameSeq"] == f.frame_seq
+        yaw = odm_angles((f.cam_qw or 0.0, f.cam_qx or 0.0, f.cam_qy or 0.0, f.cam_qz or 0.0))[0]
+        assert got["XMP-Camera:Yaw"] == pytest.approx(yaw, abs=0.01), name
+        if name.startswith("CUAV"):
+            assert any("Duplicate XMP property: Camera:Yaw" in w for w in _warnings(original[name]))
+            assert got["XMP-Camera:BandName"] == "RGB"
+        if name.startswith("DJIX3"):
+            assert got["XMP-crs:Version"] == 7.0 and got["XMP-dc:Format"] == "image/jpg"
+            assert got["XMP-drone-dji:RelativeAltitude"] == "+20.100"  # the camera's own, kept as written
+            assert (out / "images" / name).read_bytes().count(b"<?xpacket end=") == 1

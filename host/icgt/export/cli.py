@@ -419,13 +419,30 @@ def cmd_export(args: argparse.Namespace) -> int:
         geoid_separation=parse_geoid(args.geoid_separation),
         progress=not args.no_progress,
     )
-    for p in result.problems:
-        if p.severity == "error":
-            log.warning(
-                "%s%s: %s: %s", p.image or "", f" (frame {p.frame_seq})" if p.frame_seq else "", p.code, p.detail
-            )
+    log_problems(result.problems)
     print(result.describe(), file=sys.stdout)
     return exit_status(result.problems, strict=bool(getattr(args, "strict", False)))
+
+
+WARNINGS_SAID_PER_CODE = 5
+"""Warnings of one code said on stderr (every one is in problems.csv): a loaded flight flags many frames alike."""
+
+
+def log_problems(problems: ProblemLog) -> None:
+    """Every error, and the first `WARNINGS_SAID_PER_CODE` warnings of each code, on stderr (problems.csv has all)."""
+    said: dict[str, int] = {}
+    for p in problems:
+        if p.severity == "warning":
+            said[p.code] = said.get(p.code, 0) + 1
+            if said[p.code] > WARNINGS_SAID_PER_CODE:
+                continue
+        elif p.severity != "error":
+            continue
+        where = f"{p.image or ''}{f' (frame {p.frame_seq})' if p.frame_seq else ''}"
+        log.warning("%s: %s: %s: %s", p.severity, where, p.code, p.detail)
+    for code, n in said.items():
+        if n > WARNINGS_SAID_PER_CODE:
+            log.warning("warning: %d more %s rows in problems.csv", n - WARNINGS_SAID_PER_CODE, code)
 
 
 def exit_status(problems: ProblemLog, *, strict: bool = False) -> int:

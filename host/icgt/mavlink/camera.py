@@ -35,6 +35,10 @@ confirmation). It gets the first ACK again, not a second photo. A first transmis
 that reuses a sequence number after that window is a new command (a ground station that restarted, or a
 second client with the same ids, counts from 1 again) and is executed.
 
+Settings: with ``CameraConfig.settings``, CAMERA_INFORMATION names a camera definition file served over
+MAVLink FTP and the parameters are read and set with PARAM_EXT (`icgt.mavlink.camera_settings`); those
+messages are handled on the worker too.
+
 Images: see `icgt.mavlink.camera_images` (indices, the poor-pose policy, history, re-requests of one, a
 range or all images, sent paced at ``resend_rate_hz``).
 """
@@ -56,6 +60,7 @@ from pathlib import Path
 from icgt.mavlink.camera_clients import ClientTracker, is_unspecified_image_request
 from icgt.mavlink.camera_commanded import ShotPairing
 from icgt.mavlink.camera_images import CameraError, CapturedImage, ImageHistory, encode_image_captured, image_range
+from icgt.mavlink.camera_settings import SETTINGS_MESSAGES, SettingsService
 from icgt.mavlink.camera_types import (
     CameraConfig,
     CameraInfo,
@@ -226,6 +231,18 @@ class CameraComponent:
             "broadcasts_ignored": 0,  # broadcast commands this camera does not implement (no ACK, not an error)
         }
         self._ignored_seen: set[tuple[int, int]] = set()
+        # settings (definition file over MAVLink FTP, PARAM_EXT values): icgt.mavlink.camera_settings
+        self.settings: SettingsService | None = None
+        if config.settings is not None:
+            self.settings = SettingsService(
+                link,
+                config.settings,
+                model=config.info.model,
+                vendor=config.info.vendor,
+                allowed_systems=self._allowed,
+                require_signing=config.require_signing,
+            )
+        self._settings_sub: Subscription | None = None
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -234,14 +251,16 @@ class CameraComponent:
         self._stop.clear()
         self._sub = self.link.subscribe(self._on_message, ("COMMAND_LONG", "COMMAND_INT"))
         self._hb_sub = self.link.subscribe(self._on_heartbeat, ("HEARTBEAT",))
+        if self.settings is not None:
+            self._settings_sub = self.link.subscribe(self._on_settings_message, SETTINGS_MESSAGES)
         self._thread = threading.Thread(target=self._worker, name="icgt-camera", daemon=True)
         self._thread.start()
 
     def stop(self, timeout_s: float = 2.0) -> None:
-        for sub in (self._sub, self._hb_sub):
+        for sub in (self._sub, self._hb_sub, self._settings_sub):
             if sub is not None:
                 self.link.unsubscribe(sub)
-        self._sub = self._hb_sub = None
+        self._sub = self._hb_sub = self._settings_sub = None
         self._stop.set()
         with contextlib.suppress(queue.Full):
             self._queue.put_nowait(_WAKE)
@@ -273,7 +292,8 @@ class CameraComponent:
     def counters(self) -> dict[str, int]:
         """Refusals by kind (see ``_counts`` in __init__) and the images published."""
         with self._lock:
-            return {**self._counts, **self.clients.counts, "images": len(self.images)}
+            settings = self.settings.counters if self.settings is not None else {}
+            return {**self._counts, **self.clients.counts, **settings, "images": len(self.images)}
 
     def set_capturing(self, capturing: bool, interval_s: float = 0.0) -> None:
         """The recorder reports a capture state change the camera did not cause (e.g. it stopped itself)."""
@@ -304,6 +324,14 @@ class CameraComponent:
     def _on_heartbeat(self, rec: MavlinkMessage) -> None:
         if rec.src_system in self._ground_stations:
             self.clients.heard((rec.src_system, rec.src_component), rec.rx_ns)
+
+    def _on_settings_message(self, rec: MavlinkMessage) -> None:
+        """FTP and PARAM_EXT messages for this component: handled on the worker (a full queue drops one; the
+        client asks again)."""
+        service = self.settings
+        if service is not None and service.for_us(rec):
+            with contextlib.suppress(queue.Full):
+                self._queue.put_nowait(lambda: service.handle(rec))
 
     def _on_message(self, rec: MavlinkMessage) -> None:
         msg = rec.msg
@@ -409,6 +437,8 @@ class CameraComponent:
             try:
                 if isinstance(item, _Command):
                     self._execute(item)
+                elif callable(item):
+                    item()
             except Exception:
                 log.exception("camera command handling failed")
 
@@ -653,6 +683,9 @@ class CameraComponent:
 
     def _send_camera_information(self) -> None:
         info = self.config.info
+        uri, version = info.cam_definition_uri, info.cam_definition_version
+        if self.settings is not None:
+            uri, version = self.settings.uri, self.settings.version
         major, minor, patch, dev = (v & 0xFF for v in info.firmware_version)
         msg = self.link.mav.camera_information_encode(
             self.time_boot_ms(),
@@ -666,8 +699,8 @@ class CameraComponent:
             int(info.resolution_v),
             int(info.lens_id),
             mavlink2.CAMERA_CAP_FLAGS_CAPTURE_IMAGE,
-            int(info.cam_definition_version),
-            _truncate_utf8(info.cam_definition_uri, 140),
+            int(version),
+            _truncate_utf8(uri, 140),
         )
         self.link.send(msg)
 

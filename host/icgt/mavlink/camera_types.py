@@ -9,7 +9,10 @@ import dataclasses
 import enum
 import math
 from pathlib import Path
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
+
+if TYPE_CHECKING:
+    from icgt.mavlink.camera_settings import CameraSettings
 
 __all__ = [
     "DEFAULT_GROUND_STATIONS",
@@ -104,6 +107,7 @@ class CameraConfig:
     resend_rate_hz: float = 100.0  # re-requested CAMERA_IMAGE_CAPTURED messages per second, at most
     client_gap_s: float = 2.5  # a ground station not heard this long was away (icgt.mavlink.camera_clients)
     client_push_delay_s: float = 0.3  # the images it missed are sent again this long after it is back
+    settings: CameraSettings | None = None  # what ground stations may set (a definition file): camera_settings
 
 
 @dataclasses.dataclass(frozen=True, slots=True)

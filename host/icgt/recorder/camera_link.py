@@ -30,6 +30,7 @@ from icgt.geotag import FrameRecord
 from icgt.geotag.record import POOR_POSE_FLAGS, FrameFlag
 from icgt.mavlink.camera import CameraComponent, CameraConfig, CameraInfo, CaptureHandler
 from icgt.mavlink.camera_images import CapturedImage
+from icgt.mavlink.camera_settings import CameraSettings
 from icgt.mavlink.home import HomeAltitude
 from icgt.mavlink.link import MavlinkLink
 from icgt.pose import Q_OPTICAL_TO_FRD
@@ -53,8 +54,11 @@ CAMERA_IMAGES_SCHEMA: dict[str, Any] = {
 }
 
 
-def build_camera(config: RecorderConfig, link: MavlinkLink, handler: CaptureHandler) -> CameraComponent:
-    """The camera component the recorder runs on ``link`` (which carries the signing key if one is set)."""
+def build_camera(
+    config: RecorderConfig, link: MavlinkLink, handler: CaptureHandler, settings: CameraSettings | None = None
+) -> CameraComponent:
+    """The camera component the recorder runs on ``link`` (which carries the signing key if one is set), with
+    the capture settings a ground station may change (`icgt.recorder.camera_settings`) if given."""
     c = config.camera
     info = CameraInfo(
         focal_length_mm=c.focal_length_mm,
@@ -70,6 +74,7 @@ def build_camera(config: RecorderConfig, link: MavlinkLink, handler: CaptureHand
             info=info,
             ground_station_systems=frozenset(config.mavlink.ground_station_systems),
             require_signing=link.signing is not None,
+            settings=settings,
         ),
         handler,
     )

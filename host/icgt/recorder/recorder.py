@@ -70,7 +70,8 @@ from icgt.protocol.messages import (
 )
 from icgt.recorder import capture, topics
 from icgt.recorder.camera_link import CAMERA_IMAGES_SCHEMA, CameraImages, build_camera
-from icgt.recorder.config import RecorderConfig
+from icgt.recorder.camera_settings import capture_settings
+from icgt.recorder.config import CaptureSection, RecorderConfig
 from icgt.recorder.device_stop import SelfStopWatch
 from icgt.recorder.resync import TakeOver, take_over
 from icgt.recorder.step_schedule import StepSchedule
@@ -191,6 +192,7 @@ class Recorder:
         self._starting = threading.Event()  # set while start() runs: control start/stop wait for it to end
         self.failure: IcgtError | None = None
         self._sensors = config.sensors  # what the device was configured with (a sensor that does not answer: off)
+        self._capture = config.capture  # the trigger settings in force (a ground station may change them)
         self._tuning = InterpreterTuning()
         self.recording_id = secrets.randbits(32) or 1  # named to the device in HOST_RECEIVED (nonzero)
         self._self_stops = SelfStopWatch()
@@ -627,9 +629,9 @@ class Recorder:
         Raises CaptureRequestError (naming the limit) for a value the device would refuse, before
         anything is sent."""
         assert self.device is not None
-        c = self.config.capture
+        c = self._capture
         interval_s, count = check_capture_request(interval_s, count, c.shutter_pulse_s)
-        config = msgspec.structs.replace(self.config, sensors=self._sensors)
+        config = msgspec.structs.replace(self.config, sensors=self._sensors, capture=c)
         cmd, mode = capture.start_command(config, interval_s, count, self._limits())  # LimitError: nothing sent
         interval_us = cmd.interval_us
         self.device.command(cmd)
@@ -649,6 +651,10 @@ class Recorder:
         if self.camera is not None:
             self.camera.set_capturing(False)
         log.info("capture stopped")
+
+    def _set_capture(self, section: CaptureSection) -> None:
+        """A ground station's capture settings (icgt.recorder.camera_settings): from the next capture start."""
+        self._capture = section
 
     # camera component handler (CaptureHandler protocol)
     def _limits(self) -> BoardLimits:
@@ -700,7 +706,13 @@ class Recorder:
             undecoded=lambda batch: self._inbox.append((_MAVLINK, batch, batch.rx_ns)),  # other systems, in bulk
         )
         self.mavlink.start()
-        self.camera = build_camera(self.config, self.mavlink, _CaptureHandler(self))  # it logs what it refuses
+        settings = capture_settings(
+            lambda: self._capture,
+            self._set_capture,
+            lambda: msgspec.structs.replace(self.config, sensors=self._sensors),
+            self._limits,
+        )
+        self.camera = build_camera(self.config, self.mavlink, _CaptureHandler(self), settings)  # logs its refusals
         self.camera.start()
 
     def _on_mavlink_message(self, rec: MavlinkMessage | UndecodedBatch) -> None:

@@ -319,6 +319,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     catalog = sub.add_parser("catalog", help="the inspection catalogue: add flights (GeoParquet), query them (DuckDB)")
     add_catalog_arguments(catalog)
+    from icgt.catalog.compare_out import add_compare_arguments
+
+    comparing = sub.add_parser("compare", help="compare two inspections of a structure: new, grown, repaired defects")
+    add_compare_arguments(comparing)
 
     demo = sub.add_parser("demo", help="the main job on simulated hardware, with a summary against truth")
     demo.add_argument("--scenario", default="pier_scan")

@@ -4,7 +4,7 @@
     table = query("catalog", "SELECT structure, count(*) FROM frames GROUP BY ALL")   # a pyarrow.Table
 
 Views `flights`, `frames`, `images`, `footprints` and `defects` read every partition's file of that table
-(`read_parquet` over the partition glob, `union_by_name`); the WKB columns `geometry` and `geometry_face`
+(`read_parquet` over the partitions' files, one schema); the WKB columns `geometry` and `geometry_face`
 become GEOMETRY values (ST_GeomFromWKB), so spatial functions (ST_Intersects, ST_Area, ...) apply directly.
 A table without any file yet is an empty view of its declared schema.
 
@@ -95,7 +95,9 @@ def connect(root: Path | str) -> duckdb.DuckDBPyConnection:
         files = cat.files(table)
         if files:
             listing = ", ".join(f"'{_sql_str(str(p))}'" for p in files)
-            source = f"read_parquet([{listing}], union_by_name = true)"
+            # one declared schema per version, and every partition's version is checked above: the files'
+            # columns are the same, so no union_by_name (which reads every file's schema at each query)
+            source = f"read_parquet([{listing}])"
         else:
             con.register(f"_empty_{table}", SCHEMAS[table].empty_table())
             source = f"_empty_{table}"

@@ -319,6 +319,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     catalog = sub.add_parser("catalog", help="the inspection catalogue: add flights (GeoParquet), query them (DuckDB)")
     add_catalog_arguments(catalog)
+    from icgt.catalog.compare_out import add_compare_arguments
+
+    comparing = sub.add_parser("compare", help="compare two inspections of a structure: new, grown, repaired defects")
+    add_compare_arguments(comparing)
+    from icgt.batch import add_batch_arguments
+
+    batch = sub.add_parser("batch", help="export, map or catalog-add many flights on Dask distributed")
+    add_batch_arguments(batch)
 
     demo = sub.add_parser("demo", help="the main job on simulated hardware, with a summary against truth")
     demo.add_argument("--scenario", default="pier_scan")

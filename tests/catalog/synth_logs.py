@@ -35,6 +35,10 @@ class Synth:
     start_utc: datetime = datetime(2025, 6, 3, 9, 30, tzinfo=UTC)
     shift_east_m: float = 0.0
     """Moves every position east (a re-geotagged copy of one flight differs so)."""
+    shift_up_m: float = 0.0
+    """Moves every position up (another flight line, or a GPS bias)."""
+    row_spacing_m: float = 0.8
+    calibration_px: tuple[int, int] = (640, 480)
     no_pose_every: int = 0
     """Every k-th frame has no position (flag no_pose); 0: none."""
     lost_exposures: int = 0
@@ -52,7 +56,7 @@ def frames(s: Synth) -> list[FrameRecord]:
         row, col = divmod(k - 1, max(1, s.n // 2))
         east = 0.25 * col + s.shift_east_m
         north = FACE_NORTH_M - 2.0 + rng.gauss(0.0, 0.01)
-        up = 3.0 + 0.8 * row
+        up = 3.0 + s.row_spacing_m * row + s.shift_up_m
         no_pose = s.no_pose_every > 0 and k % s.no_pose_every == 0
         lat, lon, alt = (float(v) for v in lf.enu_to_geodetic([east, north, up]))
         mid_us = round(t * 1e6)
@@ -101,7 +105,8 @@ def write_log(path: Path, s: Synth, records: list[FrameRecord] | None = None) ->
     rec.add_metadata(layout.META_ENU_ORIGIN, {"lat_deg": repr(s.origin[0]), "lon_deg": repr(s.origin[1]),
                                               "alt_msl_m": repr(s.origin[2])})  # fmt: skip
     rec.add_metadata(layout.META_CALIBRATION, {"focal_length_mm": "8.8", "sensor_width_mm": "13.2",
-                                               "image_width_px": "640", "image_height_px": "480",
+                                               "image_width_px": str(s.calibration_px[0]),
+                                               "image_height_px": str(s.calibration_px[1]),
                                                "surface_normal_enu": "[0.0, -1.0, 0.0]"})  # fmt: skip
     rec.add_metadata(layout.META_DEVICE_LINK, {"lost_exposures": str(s.lost_exposures), "resend_recovered": "0"})
     rec.register_dataclass(layout.FRAMES, FrameRecord)
@@ -115,16 +120,18 @@ def write_log(path: Path, s: Synth, records: list[FrameRecord] | None = None) ->
     return recs
 
 
-def write_card(card: Path, recs: list[FrameRecord], *, clock_shift_s: float = 0.0) -> list[Path]:
-    """One 64x48 JPEG per frame (the 640x480 calibration scaled down): the camera's EXIF time (10 ms) of its
-    exposure start."""
+def write_card(
+    card: Path, recs: list[FrameRecord], *, clock_shift_s: float = 0.0, size: tuple[int, int] = (64, 48)
+) -> list[Path]:
+    """One JPEG per frame (64x48 by default: the 640x480 calibration scaled down): the camera's EXIF time (10 ms)
+    of its exposure start."""
     card.mkdir(parents=True, exist_ok=True)
     out = []
     for k, r in enumerate(recs, start=1):
         assert r.mid_utc_us is not None
         t = (r.mid_utc_us - r.duration_us / 2) / 1e6 + CAMERA_OFFSET_S + clock_shift_s
         dt = datetime.fromtimestamp(t, UTC)
-        img = Image.new("RGB", (64, 48), (k % 256, 90, 90))  # the calibration's 4:3
+        img = Image.new("RGB", size, (k % 256, 90, 90))  # the calibration's 4:3
         exif = img.getexif()
         exif[0x010F] = "SYNTH"
         exif[0x0132] = dt.strftime("%Y:%m:%d %H:%M:%S")

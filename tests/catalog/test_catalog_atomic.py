@@ -110,3 +110,34 @@ def test_an_add_that_cannot_get_the_lock_is_refused_clearly(flight_a: SynthFligh
     assert f"pid {os.getpid()}" in lines[0]
     assert snapshot(cat) == before
     assert add_flight(cat, flight_b_log, "pier-7").status == "unchanged"
+
+
+def test_an_add_in_progress_keeps_its_work_folder_while_another_add_publishes(
+    flight_a: SynthFlight, flight_b: SynthFlight, tmp_path: Path
+) -> None:
+    """Adds compute outside the lock: another add's recovery of .staging leaves a live add's folder alone and
+    removes only the folders of adds that died (their owner lock released)."""
+    import fcntl
+
+    cat = tmp_path / "cat"
+    c = Catalog(cat, create=True)
+    dead = cat / ".staging" / "add-dead"
+    dead.mkdir(parents=True)
+    (dead / ".owner").write_text("")  # nobody holds its lock: a killed add's leftovers
+    with c._work_dir(5.0) as live:
+        (live / "partial.parquet").write_bytes(b"x")
+        fd = os.open(live / ".owner", os.O_RDWR)
+        try:  # the live add holds its owner lock
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                held = False
+            except OSError:
+                held = True
+        finally:
+            os.close(fd)
+        assert held
+        assert add_flight(cat, flight_b.log, "pier-7").status == "added"
+        assert (live / "partial.parquet").is_file() and not dead.exists()
+    assert not live.exists()
+    assert add_flight(cat, flight_a.log, "pier-7").status == "added"
+    assert len(Catalog(cat).partitions()) == 2 and not any((cat / ".staging").iterdir())

@@ -4,9 +4,24 @@
     table = query("catalog", "SELECT structure, count(*) FROM frames GROUP BY ALL")   # a pyarrow.Table
 
 Views `flights`, `frames`, `images`, `footprints` and `defects` read every partition's file of that table
-(`read_parquet` over the partition glob, `union_by_name`); the WKB columns `geometry` and `geometry_face`
-become GEOMETRY values (ST_GeomFromWKB), so spatial functions (ST_DWithin_Spheroid, ST_Intersects, ...)
-apply directly. A table without any file yet is an empty view of its declared schema.
+(`read_parquet` over the partitions' files, one schema); the WKB columns `geometry` and `geometry_face`
+become GEOMETRY values (ST_GeomFromWKB), so spatial functions (ST_Intersects, ST_Area, ...) apply directly.
+A table without any file yet is an empty view of its declared schema.
+
+Distances in metres: DuckDB's spheroid functions take points as (latitude, longitude) and its
+ST_Distance_Sphere ignores the column's CRS, while GeoParquet's WGS84 is (longitude, latitude); so the
+connection defines two macros over ST_Distance_Spheroid (WGS84 ellipsoid) with the axes in GeoParquet's
+order:
+
+    geodesic_m(a, b)         the distance between two points [m]
+    within_m(a, b, metres)   geodesic_m(a, b) <= metres
+
+(points: for a footprint or a defect use ST_Centroid(geometry)). Times: the session's time zone is UTC,
+so year(start_utc) and the like are the UTC calendar's wherever the query runs.
+
+A result's geometry columns come back as WKB with a GeoParquet ``geo`` entry in the table's metadata
+(the CRS from the column's type: OGC:CRS84, or none for the face frame), so writing the table with
+pyarrow gives a GeoParquet file that geopandas and GDAL read.
 
 Nothing is downloaded: the spatial extension is loaded from the `duckdb-extension-spatial` wheel's file
 (its DuckDB build's signature checked as DuckDB checks any extension), and automatic installing and
@@ -16,6 +31,7 @@ reaching the network. The DuckDB and extension versions are pinned together in h
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -23,13 +39,17 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from icgt.catalog import CatalogError
-from icgt.catalog.schema import SCHEMAS, TABLES, table_version
+from icgt.catalog.schema import GEO_KEY, SCHEMAS, TABLES, crs84_projjson, table_version
 from icgt.catalog.store import Catalog
 
 if TYPE_CHECKING:
     import duckdb
 
 _GEOMETRY_COLUMNS = ("geometry", "geometry_face")
+_MACROS = (
+    "CREATE MACRO geodesic_m(a, b) AS ST_Distance_Spheroid(ST_Point2D(ST_Y(a), ST_X(a)), ST_Point2D(ST_Y(b), ST_X(b)))",
+    "CREATE MACRO within_m(a, b, metres) AS geodesic_m(a, b) <= metres",
+)
 
 
 def spatial_extension_path() -> Path:
@@ -66,13 +86,18 @@ def connect(root: Path | str) -> duckdb.DuckDBPyConnection:
         con.execute(f"LOAD '{_sql_str(str(spatial_extension_path()))}'")
     except duckdb.Error as exc:
         raise CatalogError(f"cannot load DuckDB's spatial extension: {exc}") from None
+    con.execute("SET TimeZone = 'UTC'")
+    for macro in _MACROS:
+        con.execute(macro)
     for path in cat.files("flights"):  # one per partition: a partition of another schema version is refused
         table_version(pq.read_metadata(path).metadata, str(path))
     for table in TABLES:
         files = cat.files(table)
         if files:
             listing = ", ".join(f"'{_sql_str(str(p))}'" for p in files)
-            source = f"read_parquet([{listing}], union_by_name = true)"
+            # one declared schema per version, and every partition's version is checked above: the files'
+            # columns are the same, so no union_by_name (which reads every file's schema at each query)
+            source = f"read_parquet([{listing}])"
         else:
             con.register(f"_empty_{table}", SCHEMAS[table].empty_table())
             source = f"_empty_{table}"
@@ -104,11 +129,33 @@ def query(root: Path | str, sql: str) -> pa.Table:
         if geo:
             rel = rel.project(", ".join(f'ST_AsWKB("{c}") AS "{c}"' if c in geo else f'"{c}"' for c in cols))
         out: pa.Table = rel.to_arrow_table() if hasattr(rel, "to_arrow_table") else rel.arrow()
+        if geo:
+            crs = {c: t for c, t in zip(cols, types, strict=True) if c in geo}
+            meta = dict(out.schema.metadata or {})
+            meta[GEO_KEY] = json.dumps(_geo_metadata(out, crs)).encode()
+            out = out.replace_schema_metadata(meta)
         return out
     except duckdb.Error as exc:
         raise CatalogError(f"query failed: {str(exc).splitlines()[0]}") from None
     finally:
         con.close()
+
+
+def _geo_metadata(table: pa.Table, types: dict[str, str]) -> dict[str, Any]:
+    """GeoParquet 1.1 metadata of a result's WKB columns: CRS84 where DuckDB's type says so, none otherwise."""
+    import shapely
+
+    columns: dict[str, Any] = {}
+    for name, typ in types.items():
+        geoms = [g for g in shapely.from_wkb(table[name].to_pylist()) if g is not None]
+        kinds = sorted({g.geom_type for g in geoms})
+        col: dict[str, Any] = {"encoding": "WKB", "geometry_types": kinds}
+        col["crs"] = crs84_projjson() if "CRS84" in typ.upper() else None
+        if geoms:
+            col["bbox"] = [float(v) for v in shapely.total_bounds(geoms)]
+        columns[name] = col
+    primary = "geometry" if "geometry" in columns else next(iter(columns))
+    return {"version": "1.1.0", "primary_column": primary, "columns": columns}
 
 
 def format_table(table: pa.Table, max_rows: int = 50) -> str:

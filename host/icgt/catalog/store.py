@@ -2,10 +2,12 @@
 
     DIR/icgt-catalog.json                          the marker: format and schema version
     DIR/.lock                                      held (flock) by the add writing; its pid inside
-    DIR/.staging/                                  adds in progress (a killed one's leftovers are removed)
+    DIR/.staging/add-*/                            adds in progress, each flock'd by its add (a killed one's
+                                                   leftovers are removed by the next add)
     DIR/structure=NAME/flight=ID/TABLE.parquet     the partitions, TABLE in flights frames images footprints defects
 
-A partition is written whole into DIR/.staging, read back, and then renamed into place: one rename, so a
+A flight's tables are computed outside the lock (adds of several flights run in parallel); then, holding
+the lock, its partition is written whole into DIR/.staging, read back, and renamed into place: one rename, so a
 reader (or a kill -9) sees the flight's old partition or its new one, never part of one. A partition
 replaced by a new revision of its flight is swapped in one step where the filesystem can (Linux
 renameat2 RENAME_EXCHANGE); elsewhere the old one is moved aside and the new one in, with a journal in
@@ -44,6 +46,7 @@ MARKER = "icgt-catalog.json"
 FORMAT = "icgt-catalog"
 LOCK = ".lock"
 STAGING = ".staging"
+OWNER = ".owner"
 DEFAULT_CATALOG = Path("catalog")
 DEFAULT_WAIT_S = 60.0
 """How long an add waits for another add holding the catalogue's lock before it is refused [s]."""
@@ -185,6 +188,8 @@ class Catalog:
             journal.unlink()
         for leftover in staging.iterdir():
             if leftover.is_dir():
+                if _alive(leftover / OWNER):
+                    continue  # another add working on its flight, outside the lock
                 shutil.rmtree(leftover, ignore_errors=True)
             else:
                 leftover.unlink(missing_ok=True)
@@ -201,19 +206,23 @@ class Catalog:
         """Add one flight (see the module's doc); the catalogue is unchanged by any error."""
         check_structure(structure)
         ident = identify(log_path, images=images, detections=detections)
-        with self.locked(wait_s):
-            final = partition(self.root, structure, ident.flight)
-            old = self.flight_row(structure, ident.flight)
-            if old is not None and old.get("revision") == ident.revision:
-                return AddResult(structure, ident.flight, ident.revision, "unchanged", None, {}, final)
-            work = self._staging() / f"add-{uuid.uuid4().hex}"
-            part = work / "partition"
-            part.mkdir(parents=True)
-            try:
-                tables = collect(log_path, structure, ident, detections=detections, work_dir=work)
+        final = partition(self.root, structure, ident.flight)
+        old = self.flight_row(structure, ident.flight)
+        if old is not None and old.get("revision") == ident.revision:
+            return AddResult(structure, ident.flight, ident.revision, "unchanged", None, {}, final)
+        # the work (reading the log, the matcher, the damage map) runs outside the lock, so adds of several
+        # flights run in parallel; only the publication is one at a time
+        with self._work_dir(wait_s) as work:
+            tables = collect(log_path, structure, ident, detections=detections, work_dir=work)
+            with self.locked(wait_s):
+                old = self.flight_row(structure, ident.flight)  # another add may have published it meanwhile
+                if old is not None and old.get("revision") == ident.revision:
+                    return AddResult(structure, ident.flight, ident.revision, "unchanged", None, {}, final)
                 if old is not None:
                     history = [*list(old.get("replaced_revisions") or []), str(old["revision"])]  # type: ignore[call-overload]
                     tables = _with_history(tables, history)
+                part = work / "partition"
+                part.mkdir()
                 rows = write_partition(part, tables)
                 final.parent.mkdir(parents=True, exist_ok=True)
                 if old is None:
@@ -221,12 +230,26 @@ class Catalog:
                 else:
                     self._swap(final, part, work)
                 _fsync_dir(final.parent)
-            finally:
-                shutil.rmtree(work, ignore_errors=True)
         return AddResult(
             structure, ident.flight, ident.revision, "added" if old is None else "replaced",
             None if old is None else str(old["revision"]), rows, final,
         )  # fmt: skip
+
+    @contextmanager
+    def _work_dir(self, wait_s: float) -> Iterator[Path]:
+        """A private folder in .staging, flock'd by this add while it lives (so a concurrent add's recovery
+        leaves it alone, and removes it once a kill -9 has released the lock); removed at the end. Made under
+        the catalogue's lock, as recoveries run, so none sees it before its owner file is locked."""
+        with self.locked(wait_s):
+            work = self._staging() / f"add-{uuid.uuid4().hex}"
+            work.mkdir()
+            fd = os.open(work / OWNER, os.O_RDWR | os.O_CREAT, 0o644)
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        try:
+            yield work
+        finally:
+            shutil.rmtree(work, ignore_errors=True)
+            os.close(fd)
 
     def _swap(self, final: Path, new: Path, work: Path) -> None:
         if _exchange(new, final):
@@ -277,6 +300,21 @@ def read_table(path: Path) -> pa.Table:
         raise CatalogError(f"{path}: not a readable Parquet file ({exc})") from None
     table_version(meta, str(path))
     return pq.read_table(path)
+
+
+def _alive(owner: Path) -> bool:
+    """Whether the add that made a work folder still holds its owner file's lock."""
+    try:
+        fd = os.open(owner, os.O_RDWR)
+    except OSError:
+        return False  # none yet (an add killed before it made it) or gone
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return True
+    finally:
+        os.close(fd)  # releases it again if it was taken
+    return False
 
 
 def _fsync_dir(path: Path) -> None:

@@ -114,8 +114,8 @@ def _h_v(vec: np.ndarray) -> tuple[float, float]:
 class InterpolationParts:
     """`interpolation_bound`'s three parts [m], each (horizontal, vertical).
 
-    ``seen``: what the samples show (the quintic correction, or the bend allowance, and the change of
-    acceleration between the ends placed anywhere inside the span); ``unexplained``: the
+    ``seen``: what the samples show (the quintic correction, or the bend allowance); ``transition``: the
+    change of acceleration between the ends, placed anywhere inside the span; ``unexplained``: the
     velocity change the end accelerations do not explain, at its worst placed inside the span (one impulse at
     the instant); ``unseen``: the allowance A for what leaves no trace at either end."""
 
@@ -123,11 +123,13 @@ class InterpolationParts:
     unexplained: tuple[float, float]
     unseen: tuple[float, float]
     unexplained_m_s2: tuple[float, float]  # the unexplained mean acceleration itself
+    transition: tuple[float, float] = (0.0, 0.0)
+    accel_change_m_s2: tuple[float, float] = (0.0, 0.0)  # |a1 - a0| itself
 
     def total(self) -> tuple[float, float]:
         return (
-            self.seen[0] + self.unexplained[0] + self.unseen[0],
-            self.seen[1] + self.unexplained[1] + self.unseen[1],
+            self.seen[0] + self.transition[0] + self.unexplained[0] + self.unseen[0],
+            self.seen[1] + self.transition[1] + self.unexplained[1] + self.unseen[1],
         )
 
 
@@ -152,9 +154,7 @@ def interpolation_parts(
     else:
         dv_h, dv_v = _h_v(dv_enu_m_s)
         seen_h, seen_v = dv_h * span_s * shape / 2.0, dv_v * span_s * shape / 2.0
-    if accel_change_m_s2 is not None:
-        da_h, da_v = _h_v(accel_change_m_s2)
-        seen_h, seen_v = seen_h + da_h * unseen, seen_v + da_v * unseen
+    da_h, da_v = _h_v(accel_change_m_s2) if accel_change_m_s2 is not None else (0.0, 0.0)
     m_h, m_v = _h_v(unexplained_accel_m_s2) if unexplained_accel_m_s2 is not None else (0.0, 0.0)
     # The unexplained velocity change m T as one impulse at the instant is the worst placing: with the ends'
     # positions and velocities matched, 2 m T^2 u (1 - u) / 4 (a smooth manoeuvre of mean m peaks near 2 m).
@@ -163,6 +163,8 @@ def interpolation_parts(
         (2.0 * m_h * unseen, 2.0 * m_v * unseen),
         (allowance.unseen_accel_h_m_s2 * unseen, allowance.unseen_accel_v_m_s2 * unseen),
         (m_h, m_v),
+        (da_h * unseen, da_v * unseen),
+        (da_h, da_v),
     )
 
 

@@ -84,12 +84,14 @@ def motion_interpolated(
 
 @dataclass(frozen=True)
 class LearnedScale:
-    """What the flight's own spans needed, each (horizontal, vertical): ``scale`` on the unexplained and unseen
-    parts of the bound, ``ordinary_m_s2`` the unexplained acceleration they showed (95 % of spans below it)."""
+    """What the flight's own spans needed, each (horizontal, vertical): ``scale`` on the transition, unexplained
+    and unseen parts of the bound; ``ordinary_m_s2`` the unexplained acceleration and ``ordinary_change_m_s2``
+    the change of acceleration between the ends they showed (95 % of spans at or below)."""
 
     scale: tuple[float, float]
     ordinary_m_s2: tuple[float, float]
     spans: int
+    ordinary_change_m_s2: tuple[float, float] = (0.0, 0.0)
 
 
 # Leave-out spans are drawn at most this many per gap (evenly over the window), interior samples between
@@ -117,7 +119,7 @@ def learn_motion_scale(
     ``t_s`` sorted, with ``p_enu_m`` / ``v_enu_m_s`` (n, 3) the samples around a gap (not inside it). A span
     is the first sample at or after ``t_s[i] + span_s`` from a start i; it must hold no spacing wider than
     twice the median (it would cross this gap, or another one). Each interior sample needed the factor
-    ``(|error| - source - seen) / (unexplained + unseen)``: the source's own 95 % part and what the samples
+    ``(|error| - source - seen) / (transition + unexplained + unseen)``: the source's own 95 % part and what the samples
     show given (the left-out sample's own noise stays in the error: the factor errs on the safe side).
     None: fewer than ``min_spans`` spans (the caller keeps the bound as the model gives it)."""
     n = len(t_s)
@@ -139,6 +141,7 @@ def learn_motion_scale(
         starts = [starts[k] for k in np.linspace(0, len(starts) - 1, _MAX_SPANS).round().astype(int)]
     need: tuple[list[float], list[float]] = ([], [])
     ordinary: tuple[list[float], list[float]] = ([], [])
+    change: tuple[list[float], list[float]] = ([], [])
     for i in starts:
         j = int(ends[i])
         span = float(t_s[j] - t_s[i])
@@ -152,34 +155,43 @@ def learn_motion_scale(
             parts = motion_interpolated(p_enu_m[i], v_enu_m_s[i], a0, p_enu_m[j], v_enu_m_s[j], a1, span, f, allowance)
             errs = (float(np.hypot(err[0], err[1])), abs(float(err[2])))
             for ax, src in enumerate((source_h_m, source_v_m)):
-                scaled = parts.unexplained[ax] + parts.unseen[ax]
+                scaled = parts.transition[ax] + parts.unexplained[ax] + parts.unseen[ax]
                 need[ax].append(max(0.0, errs[ax] - src - parts.seen[ax]) / max(scaled, 1e-9))
-        ordinary[0].append(parts.unexplained_m_s2[0])
-        ordinary[1].append(parts.unexplained_m_s2[1])
+        for ax in (0, 1):
+            ordinary[ax].append(parts.unexplained_m_s2[ax])
+            change[ax].append(parts.accel_change_m_s2[ax])
     if not need[0]:
         return None
     q = (float(np.quantile(need[0], quantile)), float(np.quantile(need[1], quantile)))
     o = (float(np.quantile(ordinary[0], quantile)), float(np.quantile(ordinary[1], quantile)))
-    return LearnedScale(q, o, len(starts))
+    c = (float(np.quantile(change[0], quantile)), float(np.quantile(change[1], quantile)))
+    return LearnedScale(q, o, len(starts), c)
 
 
 def scaled_motion(
     parts: InterpolationParts, learned: LearnedScale | None, margin: float, floor: float
 ) -> tuple[float, float]:
-    """The motion bound [m] (horizontal, vertical) with what the flight taught: the unseen part and as much of the
-    unexplained one as the flight's spans showed as ordinary are scaled by the learned factor (times
-    ``margin``, at least ``floor``); an unexplained acceleration beyond the ordinary keeps its worst case (a
-    manoeuvre inside the gap, unlike anything the flight did around it). None: the parts as they are."""
+    """The motion bound [m] (horizontal, vertical) with what the flight taught: the unseen part, and as much of
+    the unexplained and transition parts as the flight's spans showed as ordinary, are scaled by the learned
+    factor (times ``margin``, at least ``floor``); beyond the ordinary they keep their worst case (a manoeuvre
+    inside the gap, unlike anything the flight did around it). None: the parts as they are."""
     if learned is None:
         return parts.total()
     out = []
     for ax in (0, 1):
         k = max(floor, margin * learned.scale[ax])
-        m = parts.unexplained_m_s2[ax]
-        ordinary = 1.0 if m <= learned.ordinary_m_s2[ax] else learned.ordinary_m_s2[ax] / m
-        unexplained = parts.unexplained[ax] * (k * ordinary + (1.0 - ordinary))
-        out.append(parts.seen[ax] + unexplained + k * parts.unseen[ax])
+        unexplained = _ordinary_scaled(parts.unexplained[ax], parts.unexplained_m_s2[ax], learned.ordinary_m_s2[ax], k)
+        transition = _ordinary_scaled(
+            parts.transition[ax], parts.accel_change_m_s2[ax], learned.ordinary_change_m_s2[ax], k
+        )
+        out.append(parts.seen[ax] + transition + unexplained + k * parts.unseen[ax])
     return out[0], out[1]
+
+
+def _ordinary_scaled(part_m: float, size: float, ordinary: float, k: float) -> float:
+    """``part_m`` with the fraction of ``size`` up to ``ordinary`` scaled by k, the rest kept at its worst case."""
+    share = 1.0 if size <= ordinary else ordinary / size
+    return part_m * (k * share + (1.0 - share))
 
 
 def _end_accel(t_s: np.ndarray, v: np.ndarray, a: int, b: int) -> np.ndarray | None:

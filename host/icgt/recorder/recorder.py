@@ -73,6 +73,7 @@ from icgt.recorder.camera_link import CAMERA_IMAGES_SCHEMA, CameraImages, build_
 from icgt.recorder.camera_settings import capture_settings
 from icgt.recorder.config import CaptureSection, RecorderConfig
 from icgt.recorder.device_stop import SelfStopWatch
+from icgt.recorder.native_heap import NativeHeapTrimmer
 from icgt.recorder.resync import TakeOver, take_over
 from icgt.recorder.step_schedule import StepSchedule
 from icgt.recorder.tuning import InterpreterTuning
@@ -186,6 +187,7 @@ class Recorder:
         self._log_handler: McapLogHandler | None = None
         self._registered: set[str] = set()
         self._next_clock_log_ns = 0
+        self._heap_trimmer = NativeHeapTrimmer()  # thread arenas' free pages back to the system (soak)
         self._snapshot: dict[str, Any] = {}
         self._waiting_for_device = False
         self._takeover: TakeOver | None = None
@@ -846,6 +848,7 @@ class Recorder:
             self._write(layout.CLOCK_AUTOPILOT, sync.autopilot_clock.estimate().to_dict(), now)
             self._write(layout.CLOCK_UTC, sync.utc.host_to_utc(now).to_dict() | {"host_ns": now}, now)
             self._write_counters(now)
+            self._heap_trimmer.maybe_trim(now)
             self._snapshot = {
                 "device_clock_settled": sync.device_clock.settled,
                 "device_clock_uncertainty_us": device_est.uncertainty_ns / 1000.0 if device_est.valid else None,

@@ -1,0 +1,66 @@
+"""Gives the C heap's free pages back to the system now and then (glibc's malloc_trim), during a recording.
+
+Why (issue 30's soak): with the telemetry retention shortened to 90 s so that the warm-up ends after 2 min,
+the recorder's Python objects (sys.getallocatedblocks) and glibc's main arena stayed flat, but its RSS still
+rose about 0.4 MiB/min: the per-thread malloc arenas of the reader and writer threads (buffers of the
+serial and UDP reads, chunk compression) grew from 1-2 MiB to 3-4 MiB each, most of it free chunks that
+glibc keeps (it gives a thread arena's memory back only from its top). ``malloc_trim(0)`` releases the free
+pages of every arena (madvise), so the resident set follows what is in use. glibc has no setting that does
+this by itself; the standard library does not call it; so it is called here through ctypes, once every
+``interval_s`` (a few ms for the recorder's heap). Elsewhere than glibc (musl, macOS) it does nothing.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import logging
+
+__all__ = ["TRIM_INTERVAL_S", "NativeHeapTrimmer", "malloc_trim"]
+
+log = logging.getLogger(__name__)
+
+TRIM_INTERVAL_S = 30.0
+"""How often the recorder trims the C heap [s]."""
+
+
+def _load_trim() -> ctypes._CFuncPtr | None:  # type: ignore[name-defined]
+    name = ctypes.util.find_library("c")
+    if name is None:
+        return None
+    try:
+        func = ctypes.CDLL(name).malloc_trim
+    except (OSError, AttributeError):
+        return None  # not glibc
+    func.argtypes = [ctypes.c_size_t]
+    func.restype = ctypes.c_int
+    return func
+
+
+_TRIM = _load_trim()
+
+
+def malloc_trim() -> bool | None:
+    """Releases the free memory of every malloc arena; True if some was released, None where unsupported."""
+    if _TRIM is None:
+        return None
+    return bool(_TRIM(0))
+
+
+class NativeHeapTrimmer:
+    """Calls `malloc_trim` at most once every ``interval_s`` of the caller's clock [ns]."""
+
+    def __init__(self, interval_s: float = TRIM_INTERVAL_S) -> None:
+        self.interval_ns = int(interval_s * 1e9)
+        self._next_ns: int | None = None
+        self.trims = 0
+
+    def maybe_trim(self, now_ns: int) -> None:
+        if self._next_ns is None:
+            self._next_ns = now_ns + self.interval_ns
+            return
+        if now_ns < self._next_ns:
+            return
+        self._next_ns = now_ns + self.interval_ns
+        if malloc_trim() is not None:
+            self.trims += 1

@@ -243,8 +243,10 @@ def test_timesync_answered_with_boot_time(rig: Rig) -> None:
         assert reply.tc1 % 1000 == 0  # microsecond granularity, as ArduPilot
         estimate_ns = ((reply.ts1 + now) - 2 * reply.tc1) / 2  # host minus autopilot
         true_ns = now - float(rig.clocks.tau_to_autopilot_us(rig.clocks.host_ns_to_tau(now))) * 1000
-        errors.append(abs(estimate_ns - true_ns))
-    assert sorted(errors)[2] < 1_000_000  # median under 1 ms
+        # the two-way estimate is off by at most half the round trip (the path's asymmetry), plus tc1's 1 us
+        errors.append(abs(estimate_ns - true_ns) - (now - ts1) / 2)
+    # every answer within its own bound: under load the error comes with a long round trip, not a wrong stamp
+    assert max(errors) <= 2_000, errors
 
 
 def test_set_message_interval_changes_the_rate(rig: Rig) -> None:

@@ -112,7 +112,7 @@ def _h_v(vec: np.ndarray) -> tuple[float, float]:
 
 @dataclass(frozen=True)
 class InterpolationParts:
-    """`interpolation_bound`'s three parts [m], each (horizontal, vertical).
+    """`interpolation_bound`'s four parts [m], each (horizontal, vertical), and the two accelerations behind them.
 
     ``seen``: what the samples show (the quintic correction, or the bend allowance); ``transition``: the
     change of acceleration between the ends, placed anywhere inside the span; ``unexplained``: the

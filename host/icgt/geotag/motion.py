@@ -21,7 +21,9 @@ import numpy as np
 from icgt.geotag.bounds import InterpolationParts, MotionAllowance, interpolation_parts, quintic_correction
 
 __all__ = [
+    "ACCEL_WINDOW_S",
     "LearnedScale",
+    "end_accel",
     "hermite",
     "hermite_velocity",
     "learn_motion_scale",
@@ -99,7 +101,7 @@ class LearnedScale:
 # would decide the ratio).
 _MAX_SPANS = 48
 _U_RANGE = (0.2, 0.8)
-_ACCEL_WINDOW_S = 1.0  # an end acceleration from a neighbour at most this far away (as the placement rule)
+ACCEL_WINDOW_S = 1.0  # an end acceleration from a neighbour at most this far away
 
 
 def learn_motion_scale(
@@ -194,11 +196,15 @@ def _ordinary_scaled(part_m: float, size: float, ordinary: float, k: float) -> f
     return part_m * (k * share + (1.0 - share))
 
 
+def end_accel(v_a: np.ndarray, v_b: np.ndarray, dt_s: float) -> np.ndarray | None:
+    """The acceleration [m/s^2] from velocity v_a to v_b, dt_s later; None if dt_s is not in (0, ACCEL_WINDOW_S]."""
+    if dt_s <= 0 or dt_s > ACCEL_WINDOW_S:
+        return None
+    out: np.ndarray = (v_b - v_a) / dt_s
+    return out
+
+
 def _end_accel(t_s: np.ndarray, v: np.ndarray, a: int, b: int) -> np.ndarray | None:
     if a < 0 or b >= len(t_s):
         return None
-    dt = float(t_s[b] - t_s[a])
-    if dt <= 0 or dt > _ACCEL_WINDOW_S:
-        return None
-    out: np.ndarray = (v[b] - v[a]) / dt
-    return out
+    return end_accel(v[a], v[b], float(t_s[b] - t_s[a]))

@@ -40,6 +40,7 @@ from icgt.geotag.bounds import (
 )
 from icgt.geotag.motion import (
     LearnedScale,
+    end_accel,
     hermite,
     hermite_velocity,
     learn_motion_scale,
@@ -51,7 +52,6 @@ from icgt.mavlink.telemetry import FusedPositionSample, GpsSample, LocalPosition
 __all__ = ["PoseGap", "PositionEstimate", "PositionRules", "estimate_position"]
 
 _ANCHOR_HISTORY_US = 600_000_000  # a GPS-denied stretch may be placed from a fix up to 10 min old
-_ACCEL_WINDOW_US = 1_000_000  # an end acceleration from a neighbouring sample at most this far away
 
 
 @dataclass(frozen=True)
@@ -123,11 +123,7 @@ def _local_velocity_enu(s: LocalPositionSample) -> np.ndarray:
 
 
 def _accel(v_a: np.ndarray, t_a_us: int, v_b: np.ndarray, t_b_us: int) -> np.ndarray | None:
-    dt_us = t_b_us - t_a_us
-    if dt_us <= 0 or dt_us > _ACCEL_WINDOW_US:
-        return None
-    out: np.ndarray = (v_b - v_a) / (dt_us / 1e6)
-    return out
+    return end_accel(v_a, v_b, (t_b_us - t_a_us) / 1e6)
 
 
 def _fused_accel_at(tm: TelemetryStore, s: FusedPositionSample, *, outside: int) -> np.ndarray | None:

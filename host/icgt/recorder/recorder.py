@@ -147,8 +147,9 @@ class Recorder:
         self.live: Any = None  # icgt.recording.live.LiveView while serving
         self._control_path = control_socket
         self._mono_to_utc_ns = time.time_ns() - time.monotonic_ns()  # fixed: log times stay monotonic
-        self.sync_config = SyncConfig(
-            geotag=config.camera,
+        self.sync_config = SyncConfig.of(
+            config.sync,
+            config.camera,
             autopilot_system=config.mavlink.system_id,
             require_signed_autopilot=config.mavlink.signing_key_file is not None,
         )
@@ -532,7 +533,7 @@ class Recorder:
             },
         )
         c = self.config.camera
-        self.mcap.add_metadata(layout.META_CALIBRATION, {k: json.dumps(v) for k, v in asdict(c).items()})
+        self.mcap.add_metadata(layout.META_CALIBRATION, {k: json.dumps(v) for k, v in msgspec.to_builtins(c).items()})
         log.info(
             "device: %s on %s, firmware %s, serial %s",
             board,

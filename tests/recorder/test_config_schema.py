@@ -9,8 +9,8 @@ from pathlib import Path
 import msgspec
 import pytest
 
+from icgt.recorder.capture import CaptureRequestError, check_capture_request
 from icgt.recorder.config import ConfigError, RecorderConfig, load_config, parse_config
-from icgt.recorder.recorder import CaptureRequestError, check_capture_request
 
 BAD: list[tuple[str, str, object]] = [
     ("device", "url", ""),

@@ -23,7 +23,6 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import math
 import os
 import secrets
 import threading
@@ -46,7 +45,7 @@ from icgt.device import (
     DeviceLinkEvent,
     TimeSyncSample,
 )
-from icgt.device.limits import CORE, BoardLimits, LimitError, check_capture, for_board
+from icgt.device.limits import BoardLimits, LimitError, for_board
 from icgt.errors import IcgtError
 from icgt.geotag import FrameRecord
 from icgt.mavlink.camera import CameraComponent, CommandResult, HandlerResult
@@ -61,7 +60,6 @@ from icgt.protocol.messages import (
     DeviceState,
     FrameFlags,
     Hello,
-    Limit,
     Log,
     LogLevel,
     SetTime,
@@ -531,7 +529,7 @@ class Recorder:
         anything is sent."""
         assert self.device is not None
         c = self._capture
-        interval_s, count = check_capture_request(interval_s, count, c.shutter_pulse_s)
+        interval_s, count = capture.check_capture_request(interval_s, count, c.shutter_pulse_s)
         config = msgspec.structs.replace(self.config, sensors=self._sensors, capture=c)
         cmd, mode = capture.start_command(config, interval_s, count, self._limits())  # LimitError: nothing sent
         interval_us = cmd.interval_us
@@ -863,37 +861,6 @@ def _wait_clear(flag: threading.Event, timeout_s: float) -> bool:
 
 class StopNotDeliveredError(IcgtError):
     """The recording ended with capture running on a device the recorder could not reach to stop it."""
-
-
-class CaptureRequestError(LimitError):
-    """A start-capture request (control socket, ground station, command line) with a value out of range."""
-
-    def __init__(self, message: str, limit: Limit = Limit.NONE) -> None:
-        super().__init__(limit, message)
-
-
-MIN_INTERVAL_S = CORE.min_interval_s  # the firmware's trigger: 20 fps at most (icgt.device.limits)
-MAX_INTERVAL_S = CORE.max_interval_s
-MAX_COUNT = 0xFFFF  # START_CAPTURE.count is a u16
-
-
-def check_capture_request(interval_s: Any, count: Any, shutter_pulse_s: float) -> tuple[float | None, int]:
-    """(interval [s] or None for the configured one, count) checked against the device's limits."""
-    if interval_s is not None:
-        if isinstance(interval_s, bool) or not isinstance(interval_s, int | float) or not math.isfinite(interval_s):
-            raise CaptureRequestError(f"interval_s {interval_s!r}: a number of seconds between shots is needed")
-        try:
-            check_capture(mode="interval", interval_s=interval_s, shutter_pulse_s=shutter_pulse_s, feedback=False)
-        except LimitError as exc:
-            raise CaptureRequestError(exc.message, exc.limit) from None
-    if isinstance(count, bool) or not isinstance(count, int):
-        if isinstance(count, float) and count.is_integer() and math.isfinite(count):
-            count = int(count)
-        else:
-            raise CaptureRequestError(f"count {count!r}: a whole number of shots is needed (0: until stopped)")
-    if not 0 <= count <= MAX_COUNT:
-        raise CaptureRequestError(f"count {count}: allowed 0 (until stopped) .. {MAX_COUNT}")
-    return (float(interval_s) if interval_s is not None else None), count
 
 
 def _output_dir(path: Path) -> Path:

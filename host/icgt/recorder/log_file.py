@@ -19,8 +19,12 @@ from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
+import msgspec
+
 from icgt.errors import IcgtError
-from icgt.geotag import FrameRecord
+from icgt.geotag import FrameRecord, GeotagConfig
+from icgt.protocol import PROTOCOL_VERSION, TABLE_HASH
+from icgt.protocol.messages import Board, ClockSource, Hello
 from icgt.recorder import topics
 from icgt.recorder.camera_link import CAMERA_IMAGES_SCHEMA
 from icgt.recorder.config import RecorderConfig
@@ -29,7 +33,7 @@ from icgt.recording.writer import McapLogHandler
 from icgt.sync import SyncConfig
 from icgt.version import __version__
 
-__all__ = ["RecorderLog", "register_channels", "start_metadata"]
+__all__ = ["RecorderLog", "board_name", "device_metadata", "register_channels", "start_metadata"]
 
 log = logging.getLogger("icgt.recorder")
 
@@ -70,6 +74,36 @@ def register_channels(mcap: McapRecorder) -> None:
     mcap.register_json(layout.COUNTERS, "icgt.counters", layout.COUNTERS_SCHEMA)
     mcap.register_json(layout.MAVLINK_OTHER_SYSTEMS, "icgt.mavlink_raw", layout.MAVLINK_RAW_SCHEMA)
     mcap.register_json(layout.CAMERA_IMAGES, "icgt.camera_image", CAMERA_IMAGES_SCHEMA)
+
+
+def board_name(board: int) -> str:
+    """The HELLO's board as a word ("teensy41"), or its number when this host does not know it."""
+    try:
+        return Board(board).name.lower()
+    except ValueError:
+        return str(board)
+
+
+def device_metadata(hello: Hello, device_url: str, camera: GeotagConfig) -> dict[str, dict[str, str]]:
+    """What the log says about the device it recorded (its HELLO, both protocol versions) and the camera."""
+    try:
+        clock = ClockSource(hello.clock_source).name.lower()
+    except ValueError:
+        clock = str(hello.clock_source)
+    return {
+        layout.META_DEVICE: {
+            "firmware_version": hello.firmware_version,
+            "protocol_version": str(hello.protocol_version),
+            "host_protocol_version": str(PROTOCOL_VERSION),
+            "table_hash": f"0x{hello.table_hash:08X}",
+            "host_table_hash": f"0x{TABLE_HASH:08X}",
+            "board": board_name(hello.board),
+            "serial_number": str(hello.serial_number),
+            "clock_source": clock,
+            "device_url": device_url,
+        },
+        layout.META_CALIBRATION: {k: json.dumps(v) for k, v in msgspec.to_builtins(camera).items()},
+    }
 
 
 class RecorderLog:

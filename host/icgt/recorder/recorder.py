@@ -21,7 +21,6 @@ to the device.
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import os
 import secrets
@@ -52,11 +51,8 @@ from icgt.mavlink.camera import CameraComponent, CommandResult, HandlerResult
 from icgt.mavlink.frames import UndecodedBatch
 from icgt.mavlink.link import LinkConfig, MavlinkEvent, MavlinkLink, MavlinkMessage, StreamRate
 from icgt.mavlink.signing import load_signing_key
-from icgt.protocol import PROTOCOL_VERSION, TABLE_HASH
 from icgt.protocol import Received as DeviceReceived
 from icgt.protocol.messages import (
-    Board,
-    ClockSource,
     DeviceState,
     FrameFlags,
     Hello,
@@ -71,7 +67,7 @@ from icgt.recorder.camera_link import CameraImages, build_camera
 from icgt.recorder.camera_settings import capture_settings
 from icgt.recorder.config import CaptureSection, RecorderConfig
 from icgt.recorder.device_stop import SelfStopWatch
-from icgt.recorder.log_file import RecorderLog, start_metadata
+from icgt.recorder.log_file import RecorderLog, board_name, device_metadata, start_metadata
 from icgt.recorder.native_heap import NativeHeapTrimmer
 from icgt.recorder.resync import TakeOver, take_over
 from icgt.recorder.step_schedule import StepSchedule
@@ -406,33 +402,11 @@ class Recorder:
 
     def _record_hello(self, hello: Hello) -> None:
         assert self.mcap is not None
-        try:
-            board = Board(hello.board).name.lower()
-        except ValueError:
-            board = str(hello.board)
-        try:
-            clock = ClockSource(hello.clock_source).name.lower()
-        except ValueError:
-            clock = str(hello.clock_source)
-        self.mcap.add_metadata(
-            layout.META_DEVICE,
-            {
-                "firmware_version": hello.firmware_version,
-                "protocol_version": str(hello.protocol_version),
-                "host_protocol_version": str(PROTOCOL_VERSION),
-                "table_hash": f"0x{hello.table_hash:08X}",
-                "host_table_hash": f"0x{TABLE_HASH:08X}",
-                "board": board,
-                "serial_number": str(hello.serial_number),
-                "clock_source": clock,
-                "device_url": self.config.device.url,
-            },
-        )
-        c = self.config.camera
-        self.mcap.add_metadata(layout.META_CALIBRATION, {k: json.dumps(v) for k, v in msgspec.to_builtins(c).items()})
+        for name, values in device_metadata(hello, self.config.device.url, self.config.camera).items():
+            self.mcap.add_metadata(name, values)
         log.info(
             "device: %s on %s, firmware %s, serial %s",
-            board,
+            board_name(hello.board),
             self.config.device.url,
             hello.firmware_version,
             hello.serial_number,

@@ -40,6 +40,7 @@ from icgt.protocol.messages import CaptureState, DeviceState, Exposure, FrameFla
 from icgt.recorder import topics
 from icgt.recorder.device_stop import describe_stop, self_stop_of
 from icgt.recorder.flight_log import KEPT_TYPES, FlightLog, read_flight_log
+from icgt.recorder.log_file import board_name
 from icgt.recording import McapRecorder, RecordingError, layout
 from icgt.version import __version__
 
@@ -288,7 +289,7 @@ def _write(
             {
                 "firmware_version": hello.firmware_version,
                 "protocol_version": str(hello.protocol_version),
-                "board": str(hello.board),
+                "board": board_name(hello.board),
                 "serial_number": str(hello.serial_number),
                 "host_software": f"icgt {__version__} recover-device",
             },

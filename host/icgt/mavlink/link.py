@@ -9,12 +9,15 @@
   subscribers. Subscribers are **callbacks run on the reader thread**: they must return quickly and never
   block (take a lock briefly at most, or hand the message to your own queue). `subscribe_queue()` gives a
   bounded `queue.Queue` instead for consumers that want to block on their own thread.
-* the **service** thread tracks the autopilot's liveness (seen / lost after ``link_timeout_s`` without any
-  message / back, each a `MavlinkEvent` carrying the outage length), sends TIMESYNC requests (fast after the
-  autopilot appears, then slow; each send time goes to ``on_timesync_sent``: pairing the replies is the
-  synchroniser's job, `icgt.sync`, so that the live recorder and the offline recompute pair them by one
-  rule) and requests the telemetry stream rates with MAV_CMD_SET_MESSAGE_INTERVAL (one command at a time,
-  retried until a COMMAND_ACK, bounded) at start, after every outage and after an autopilot reboot.
+* the **service** thread runs the `LinkScheduler` (icgt.mavlink.link_scheduler): TIMESYNC requests (each send
+  time goes to ``on_timesync_sent``: pairing the replies is the synchroniser's job, `icgt.sync`, so that the
+  live recorder and the offline recompute pair them by one rule) and the telemetry stream rates asked with
+  MAV_CMD_SET_MESSAGE_INTERVAL.
+
+The link keeps no account of the autopilot's presence: the core does (`icgt.mavlink.autopilot_rules.
+AutopilotPresence`, in the synchroniser), and its owner passes each change on as a hint (`autopilot_hint`):
+rates are asked again and TIMESYNC goes fast when the autopilot appears, comes back or reboots. The link's
+own events are about itself: its transport, its rate requests, its socket's drops.
 
 If a stream transport (serial, TCP) fails, the reader closes it and reopens it every ``reopen_delay_s``
 until it works again or the link is stopped. `send()` may be called from any thread.
@@ -44,22 +47,21 @@ from typing import Any
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from icgt.mavlink.autopilot_rules import AutopilotPresence, Freshness, is_autopilot_heartbeat
+from icgt.mavlink.autopilot_rules import PresenceChange
 from icgt.mavlink.frames import ForeignFrame, UndecodedBatch, UndecodedFrame, split_foreign
+from icgt.mavlink.link_scheduler import LinkScheduler
 from icgt.mavlink.link_types import (
     DEFAULT_STREAM_RATES,
     MAV_COMP_ID_CAMERA,
     LinkConfig,
     LinkError,
     LinkEventKind,
-    LinkState,
     LinkStats,
     MavlinkEvent,
     MavlinkMessage,
     RateRequestResult,
     StreamRate,
     Subscription,
-    _RateJob,
 )
 from icgt.mavlink.signing import SigningState
 from icgt.mavlink.transport import is_datagram, open_transport
@@ -80,7 +82,6 @@ __all__ = [
     "LinkConfig",
     "LinkError",
     "LinkEventKind",
-    "LinkState",
     "LinkStats",
     "MavlinkEvent",
     "MavlinkLink",
@@ -105,7 +106,7 @@ _PUMP_DRAINS = 8  # drains per pump() call, at most (owner-pumped links)
 
 
 class MavlinkLink:
-    """A MAVLink connection with a stamping reader thread, autopilot liveness, TIMESYNC and stream rates.
+    """A MAVLink connection with a stamping reader thread, TIMESYNC and stream rates (on the core's hints).
 
     ``on_event`` and ``on_timesync_sent`` (the ts1 [ns, host clock] of each TIMESYNC request just sent) are
     called on the link's threads: keep them short and non-blocking.
@@ -125,7 +126,6 @@ class MavlinkLink:
         self._on_timesync_sent = on_timesync_sent
         self._clock = clock
         self._ap_system = config.effective_autopilot_system
-        self._ap_component: int | None = config.autopilot_component
         # One MAVLink 2 parser for input (it accepts v1 frames too) and one packer for output, both owned
         # here rather than by mavutil, whose dialect is a process-wide global switched by environment.
         self.signing = (
@@ -142,13 +142,9 @@ class MavlinkLink:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._subs: tuple[Subscription, ...] = ()
-        # liveness
-        self._state = LinkState.WAITING
-        self._last_ap_rx_ns = 0
-        self._lost_since_ns = 0  # time of the last message before the loss
-        # which stream with the autopilot's ids is the autopilot's, and when it rebooted (the synchroniser's rules)
-        self._presence = AutopilotPresence(self._ap_system, config.autopilot_component)
-        self._second_sender_frames = 0
+        # TIMESYNC and stream-rate requests, on the core's hints (under self._lock)
+        self._scheduler = LinkScheduler(config)
+        self._watched: tuple[int, int] | None = None  # the autopilot's ids as the core named them
         # counters
         self._by_type: dict[str, int] = {}
         self._bad_frames = 0
@@ -173,18 +169,7 @@ class MavlinkLink:
         self._kernel_drops = 0  # datagrams the kernel dropped (receive buffer full), all sockets so far
         self._socket_drops = 0  # ... of which the current socket's
         self._drops_warned_ns = -(1 << 62)
-        self._outages = 0
         self._transport_errors = 0
-        # timesync requests
-        self._ts_next_ns = 0
-        self._ts_fast_left = 0
-        # stream rates
-        self._rate_jobs: list[_RateJob] = []
-        self._rate_results: dict[int, RateRequestResult] = {}
-        self._ap_rx_count: dict[int, int] = {}  # message id -> messages received from the autopilot
-        self._rate_window: dict[int, tuple[int, int]] = {}  # message id -> (window start ns, count then)
-        self._rate_rerequests: dict[int, int] = {}  # message id -> re-requests since the autopilot appeared
-        self._confirmation = 0
         # owner-pumped (see the module docstring): no threads; pump() reads and services
         self._pumped = False
         self._reopen_at_ns = 0  # pumped, transport closed: when pump() tries to reopen it next [ns, host clock]
@@ -279,8 +264,8 @@ class MavlinkLink:
 
     def pump(self) -> int:
         """An owner-pumped link's reader and service step, on the caller's thread: every datagram waiting is
-        read (with the kernel's arrival stamp) and handled, subscribers called here; then liveness, TIMESYNC
-        and stream-rate requests when due. A socket error closes the transport (a TRANSPORT_ERROR event) and
+        read (with the kernel's arrival stamp) and handled, subscribers called here; then TIMESYNC and
+        stream-rate requests when due. A socket error closes the transport (a TRANSPORT_ERROR event) and
         later calls reopen it every ``reopen_delay_s``. Returns the datagrams read; 0 and nothing done on a
         link that is not `pumped` (its own threads read) or is stopped."""
         if not self._pumped or self._stop.is_set():
@@ -390,25 +375,38 @@ class MavlinkLink:
 
     # ------------------------------------------------------------------ state
     @property
-    def state(self) -> LinkState:
-        with self._lock:
-            return self._state
+    def transport_up(self) -> bool:
+        """The transport is open (a failed serial or TCP one is down until it reopens)."""
+        return self._conn is not None
 
     @property
     def autopilot(self) -> tuple[int, int] | None:
-        """(system, component) of the autopilot once known."""
+        """(system, component) of the autopilot as the core last named it (`autopilot_hint`)."""
         with self._lock:
-            return None if self._ap_component is None else (self._ap_system, self._ap_component)
+            return self._scheduler.autopilot
+
+    def autopilot_hint(self, change: PresenceChange, system: int, component: int | None, host_ns: int) -> None:
+        """The core's word on the autopilot (its one state machine, `AutopilotPresence`): seen, back or rebooted
+        asks every stream rate again and starts TIMESYNC's fast phase; lost drops the pending rate requests.
+        Any thread; the requests go out at the service thread's (or the owner's `pump`) next step."""
+        with self._lock:
+            if not change.appeared:
+                self._scheduler.autopilot_lost()
+                return
+            comp = 1 if component is None else component
+            self._watched = (system, comp)
+            self._scheduler.autopilot_appeared(system, comp, host_ns)
 
     def rate_results(self) -> list[RateRequestResult]:
         """The latest result per requested message id."""
         with self._lock:
-            return list(self._rate_results.values())
+            return self._scheduler.rate_results()
 
     def request_rates(self) -> None:
-        """(Re)send the configured SET_MESSAGE_INTERVAL commands now (normally automatic)."""
+        """(Re)send the configured SET_MESSAGE_INTERVAL commands now, if the autopilot is there (normally on
+        the core's hints)."""
         with self._lock:
-            self._schedule_rates_locked()
+            self._scheduler.request_rates()
 
     def stats(self) -> LinkStats:
         signing = self.signing.counts if self.signing is not None else {}
@@ -427,10 +425,8 @@ class MavlinkLink:
                 queue_drops=self._queue_drops,
                 self_echoes=self._self_echoes,
                 same_id_frames=self._same_id_frames,
-                second_sender_frames=self._second_sender_frames,
                 timesync_sent=self._ts_sent,
                 undecoded_frames=self._undecoded,
-                outages=self._outages,
                 transport_errors=self._transport_errors,
                 kernel_drops=self._kernel_drops,
                 udp_receive_buffer_bytes=self.receive_buffer_bytes,
@@ -750,100 +746,21 @@ class MavlinkLink:
                     self._self_echoes += 1
                 return  # our own frame, looped back by a router or a broadcast
             self._foreign_same_id(rec)
-        events: list[MavlinkEvent] = []
         with self._lock:
             self._by_type[mtype] = self._by_type.get(mtype, 0) + 1
             if rec.mavlink_version == 1:
                 self._v1 += 1
             else:
                 self._v2 += 1
-            if src[0] == self._ap_system:
-                if self._ap_component is None and mtype == "HEARTBEAT" and is_autopilot_heartbeat(msg):
-                    self._ap_component = src[1]
-                fresh = self._presence.observe(msg, mtype, rec.rx_ns)
-                if fresh is Freshness.SECOND_SENDER:
-                    self._second_sender_locked(rec)
-                elif src[1] == self._ap_component and self._ap_component is not None:
-                    events.extend(self._autopilot_message_locked(rec, mtype, fresh is Freshness.REBOOTED))
-                    if mtype == "COMMAND_ACK":
-                        self._command_ack_locked(msg)
+            if src == self._watched:
+                self._scheduler.on_autopilot_message(rec.msg_id, msg, rec.rx_ns)
             subs = self._subs
-        for event in events:
-            level = logging.WARNING if event.kind is LinkEventKind.AUTOPILOT_REBOOTED else logging.INFO
-            self._emit(event, level)
         for sub in subs:
             if sub.types is None or mtype in sub.types:
                 try:
                     sub.callback(rec)
                 except Exception:
                     self._count_callback_error(f"subscriber {sub.callback!r} on {mtype}")
-
-    def _second_sender_locked(self, rec: MavlinkMessage) -> None:
-        """A frame with the autopilot's ids that is not of its stream (AutopilotPresence): counted, said loudly the
-        first time, passed on to the subscribers (the recorder logs it; the synchroniser does not believe it), and
-        neither presence, reboot nor command answer of the autopilot."""
-        self._second_sender_frames += 1
-        if self._second_sender_frames == 1:
-            log.error(
-                "a second sender uses the autopilot's MAVLink id %d:%d (%s): not believed; counted as "
-                "second_sender_frames",
-                rec.src_system,
-                rec.src_component,
-                self._presence.detail,
-            )
-
-    def _autopilot_message_locked(self, rec: MavlinkMessage, mtype: str, rebooted: bool) -> list[MavlinkEvent]:
-        events: list[MavlinkEvent] = []
-        now = rec.rx_ns
-        sysid, compid = rec.src_system, rec.src_component
-        if self._state is LinkState.WAITING:
-            self._state = LinkState.UP
-            events.append(MavlinkEvent(LinkEventKind.AUTOPILOT_SEEN, now, sysid, compid, detail=f"first {mtype}"))
-            self._autopilot_fresh_locked(now)
-        elif self._state is LinkState.LOST:
-            self._state = LinkState.UP
-            outage = now - self._lost_since_ns
-            events.append(
-                MavlinkEvent(
-                    LinkEventKind.AUTOPILOT_BACK, now, sysid, compid, outage, f"back after {outage / 1e9:.3f} s"
-                )
-            )
-            self._autopilot_fresh_locked(now)
-        self._last_ap_rx_ns = now
-        msg_id = rec.msg.get_msgId()
-        self._ap_rx_count[msg_id] = self._ap_rx_count.get(msg_id, 0) + 1
-        if rebooted:
-            events.append(
-                MavlinkEvent(LinkEventKind.AUTOPILOT_REBOOTED, now, sysid, compid, detail=self._presence.detail)
-            )
-            self._autopilot_fresh_locked(now)
-        return events
-
-    def _autopilot_fresh_locked(self, now: int) -> None:
-        """The autopilot appeared, came back or rebooted: streams may be at defaults, clocks may differ."""
-        self._schedule_rates_locked()
-        self._ts_fast_left = self.config.timesync_fast_count
-        self._ts_next_ns = now
-
-    def _command_ack_locked(self, msg: Any) -> None:
-        if int(msg.command) != mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL or not self._rate_jobs:
-            return
-        target_sys = int(getattr(msg, "target_system", 0))
-        target_comp = int(getattr(msg, "target_component", 0))
-        if (target_sys, target_comp) != (0, 0) and (target_sys, target_comp) != (
-            self.config.system_id,
-            self.config.component_id,
-        ):
-            return  # the answer to another component's request
-        job = self._rate_jobs[0]
-        if job.attempts == 0:
-            return  # not sent yet: a stale ACK
-        result = int(msg.result)
-        if result == mavlink2.MAV_RESULT_IN_PROGRESS:
-            job.deadline_ns = self._clock() + int(self.config.rate_ack_timeout_s * 1e9)
-            return
-        job.ack = result
-        job.acked = True
 
     def _foreign_same_id(self, rec: MavlinkMessage) -> None:
         """A frame with our system and component id that we did not send: another device (a real camera at
@@ -938,61 +855,20 @@ class MavlinkLink:
 
     def _service_once(self, now: int) -> None:
         self._poll_kernel_drops()
-        events: list[tuple[MavlinkEvent, int]] = []
-        send_timesync = False
-        rate_to_send: StreamRate | None = None
-        confirmation = 0
         with self._lock:
-            # liveness
-            if self._state is LinkState.UP and now - self._last_ap_rx_ns > int(self.config.link_timeout_s * 1e9):
-                self._state = LinkState.LOST
-                self._lost_since_ns = self._last_ap_rx_ns
-                self._outages += 1
-                self._rate_jobs.clear()
-                silent = now - self._last_ap_rx_ns
-                lost = MavlinkEvent(
-                    LinkEventKind.AUTOPILOT_LOST,
-                    now,
-                    self._ap_system,
-                    self._ap_component or 0,
-                    silent,
-                    f"no message for {silent / 1e9:.3f} s",
-                )
-                events.append((lost, logging.WARNING))
-            # timesync requests
-            if self.config.timesync and now >= self._ts_next_ns:
-                fast = self._ts_fast_left > 0 and self._state is LinkState.UP
-                hz = self.config.timesync_fast_hz if fast else self.config.timesync_slow_hz
-                if fast:
-                    self._ts_fast_left -= 1
-                self._ts_next_ns = now + int(1e9 / max(hz, 1e-3))
-                send_timesync = True
-            # stream rates, one command at a time (a COMMAND_ACK does not say which message it answers)
-            while self._rate_jobs and self._state is LinkState.UP:
-                job = self._rate_jobs[0]
-                exhausted = job.attempts >= self.config.rate_max_attempts and now >= job.deadline_ns
-                if job.acked or exhausted:
-                    self._rate_jobs.pop(0)
-                    result = RateRequestResult(
-                        job.rate.message_id, job.rate.name, job.rate.rate_hz, job.ack, job.attempts, now
-                    )
-                    self._rate_results[job.rate.message_id] = result
-                    events.append(self._rate_event(result))
-                    continue
-                if job.attempts < self.config.rate_max_attempts and now >= job.deadline_ns:
-                    job.attempts += 1
-                    job.deadline_ns = now + int(self.config.rate_ack_timeout_s * 1e9)
-                    rate_to_send = job.rate
-                    confirmation = min(job.attempts - 1, 255)
-                break
-            if not self._rate_jobs and self._state is LinkState.UP:
-                events.extend(self._rates_not_arriving_locked(now))
-        for event, level in events:
+            due = self._scheduler.due(now)
+        for event, level in due.events:
             self._emit(event, level)
-        if send_timesync:
+        if due.timesync:
             self._send_timesync()
-        if rate_to_send is not None:
-            self._send_rate_request(rate_to_send, confirmation)
+        if due.rate is not None:
+            rate = due.rate.rate
+            self.send_command_long(
+                *due.rate.target,
+                mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL,
+                (rate.message_id, rate.interval_us, 0, 0, 0, 0, 0),
+                confirmation=due.rate.confirmation,
+            )
 
     def _send_timesync(self) -> None:
         tx_ns = self._clock()
@@ -1006,67 +882,3 @@ class MavlinkLink:
         if self.send(msg):
             with self._lock:
                 self._ts_sent += 1
-
-    def _send_rate_request(self, rate: StreamRate, confirmation: int) -> None:
-        with self._lock:
-            comp = self._ap_component or 1
-        self.send_command_long(
-            self._ap_system,
-            comp,
-            mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL,
-            (rate.message_id, rate.interval_us, 0, 0, 0, 0, 0),
-            confirmation=confirmation,
-        )
-
-    def _schedule_rates_locked(self) -> None:
-        if self.config.request_rates:
-            self._rate_jobs = [_RateJob(rate) for rate in self.config.stream_rates]
-            self._rate_rerequests.clear()
-
-    def _rates_not_arriving_locked(self, now: int) -> list[tuple[MavlinkEvent, int]]:
-        """Ask again for streams the autopilot ACCEPTED but sends at under a fifth of the rate asked, over
-        each `rate_verify_s` window (ArduPilot resets them at the end of its boot; a parameter download
-        slows them only 4 times)."""
-        events: list[tuple[MavlinkEvent, int]] = []
-        verify_ns = int(self.config.rate_verify_s * 1e9)
-        for rate in self.config.stream_rates:
-            mid = rate.message_id
-            result = self._rate_results.get(mid)
-            if result is None or not result.accepted or rate.rate_hz <= 0:
-                continue
-            count = self._ap_rx_count.get(mid, 0)
-            start, count0 = self._rate_window.get(mid, (0, 0))
-            if start < result.host_ns:
-                self._rate_window[mid] = (now, count)
-                continue
-            if now - start < verify_ns:
-                continue
-            self._rate_window[mid] = (now, count)
-            expected = rate.rate_hz * (now - start) / 1e9
-            tries = self._rate_rerequests.get(mid, 0)
-            if count - count0 >= 0.2 * expected or tries >= self.config.rate_max_rerequests:
-                continue
-            self._rate_rerequests[mid] = tries + 1
-            self._rate_jobs.append(_RateJob(rate))
-            detail = (
-                f"{rate.name} at {rate.rate_hz:g} Hz: ACCEPTED but {count - count0} came in "
-                f"{(now - start) / 1e9:.1f} s; asking again ({tries + 1} of {self.config.rate_max_rerequests})"
-            )
-            event = MavlinkEvent(
-                LinkEventKind.RATE_REQUEST, now, self._ap_system, self._ap_component or 0, detail=detail
-            )
-            events.append((event, logging.WARNING))
-        return events
-
-    def _rate_event(self, result: RateRequestResult) -> tuple[MavlinkEvent, int]:
-        """Called with self._lock held."""
-        if result.result is None:
-            detail = f"{result.name} at {result.rate_hz:g} Hz: no COMMAND_ACK after {result.attempts} attempts"
-        else:
-            entry = mavlink2.enums["MAV_RESULT"].get(result.result)
-            outcome = getattr(entry, "name", str(result.result))
-            detail = f"{result.name} at {result.rate_hz:g} Hz: {outcome} (attempt {result.attempts})"
-        event = MavlinkEvent(
-            LinkEventKind.RATE_REQUEST, result.host_ns, self._ap_system, self._ap_component or 0, detail=detail
-        )
-        return event, logging.INFO if result.accepted else logging.WARNING

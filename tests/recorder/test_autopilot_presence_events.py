@@ -17,7 +17,7 @@ from icgt.recorder import Recorder, RecorderConfig
 from icgt.recording import McapRecorder, layout
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "mavlink"))
-from mavlink_peers import AutopilotPeer, free_udp_port  # noqa: E402
+from mavlink_peers import AutopilotPeer, free_udp_port
 
 STEP_S = 0.05  # the worker's period is 100 ms; quicker here, as when frames are due
 

@@ -29,7 +29,7 @@ from icgt.geometry import (
     load_calibration,
     origin_from_frames,
 )
-from icgt.geotag.geotagger import GeotagConfig
+from icgt.geotag.config import GeotagConfig
 from icgt.geotag.record import FrameRecord
 from icgt.sim.scenario import load_scenario
 from icgt.sim.trajectory import Trajectory

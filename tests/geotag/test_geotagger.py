@@ -25,7 +25,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from icgt.clocks.device_clock import ClockNotSyncedError
 from icgt.geodesy import LocalFrame
 from icgt.geotag.bounds import AXIS_95, RADIAL_95
-from icgt.geotag.geotagger import GeotagConfig, Geotagger
+from icgt.geotag.config import GeotagConfig
+from icgt.geotag.geotagger import Geotagger
 from icgt.geotag.record import FrameFlag, FrameRecord
 from icgt.mavlink.link import MavlinkMessage
 from icgt.mavlink.telemetry import TelemetryStore
@@ -457,13 +458,13 @@ def test_frame_waits_for_the_later_position_and_attitude_samples():
 
 
 def test_frame_is_emitted_after_max_wait_moved_by_the_earlier_velocity_and_flagged():
-    rig = Rig(GeotagConfig(origin=ORIGIN, max_wait_ms=500.0))
+    rig = Rig(GeotagConfig(origin=ORIGIN, max_wait_s=0.5))
     rig.gps(12_990)
     rig.pose(13_000, dlat_e7=300, v_ned=(0.0, 2.0, 0.0))
     rig.expose()
     mid = host_ns(MID_US)
     # A usable GPS sample 45 ms before mid: the next one may be up to max_gps_gap_s (1.5 s) away, so the
-    # frame waits that long plus max_wait_ms before it is moved by dead reckoning.
+    # frame waits that long plus max_wait_s before it is moved by dead reckoning.
     assert rig.poll(mid + 500_000_000) == []
     assert rig.poll(mid + 1_999_999_999) == []
     (f,) = rig.poll(mid + 2_000_000_000)
@@ -483,7 +484,7 @@ def test_frame_is_emitted_after_max_wait_moved_by_the_earlier_velocity_and_flagg
 
 
 def test_long_dead_reckoning_is_flagged_stale():
-    rig = Rig(GeotagConfig(origin=ORIGIN, max_wait_ms=500.0))
+    rig = Rig(GeotagConfig(origin=ORIGIN, max_wait_s=0.5))
     rig.gps(12_400)
     rig.pose(12_500)
     rig.expose()
@@ -495,7 +496,7 @@ def test_long_dead_reckoning_is_flagged_stale():
 def test_no_position_beyond_the_extrapolation_horizon():
     """0.8 s after the last sample with nothing after it: (3 + 2) 0.8^2 / 2 = 1.6 m > max_extrapolation_m (1 m).
     No guess: no_pose, with the gap; the frame is placed once the later sample is there (a recompute)."""
-    rig = Rig(GeotagConfig(origin=ORIGIN, max_wait_ms=500.0))
+    rig = Rig(GeotagConfig(origin=ORIGIN, max_wait_s=0.5))
     rig.gps(12_200)
     rig.pose(12_245)
     rig.expose()
@@ -778,7 +779,7 @@ def test_without_a_device_clock_mapping_the_arrival_time_is_used_and_flagged():
 
 def test_a_device_clock_bound_above_the_limit_is_flagged():
     rig = Rig(
-        GeotagConfig(origin=ORIGIN, max_clock_uncertainty_us=1000.0),
+        GeotagConfig(origin=ORIGIN, max_clock_uncertainty_s=0.001),
         device_clock=FakeDeviceClock(uncertainty_ns=1_000_001),
     )
     fix_then_bracket(rig)

@@ -1,7 +1,7 @@
 """A frame between two GPS samples that are further apart than the geotagger's wait (host bug, issue 9).
 
 The position rules interpolate between GLOBAL_POSITION_INT samples up to `max_gps_gap_s` (1.5 s)
-apart, but a frame is built once `max_wait_ms` (500 ms) has passed since its mid-exposure, whether
+apart, but a frame is built once `max_wait_s` (0.5 s) has passed since its mid-exposure, whether
 or not the later sample can still come. Real autopilots stream that slowly: ArduPilot's streams run
 "4 or more times slower than requested while parameters are being sent"
 (ardupilot.org/dev/docs/mavlink-requesting-data.html), so 4 Hz becomes 1 Hz during a parameter
@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from test_geotagger import MID_US, ORIGIN, Rig, host_ns
 
-from icgt.geotag.geotagger import GeotagConfig
+from icgt.geotag.config import GeotagConfig
 
 
 def test_a_frame_waits_for_the_later_gps_sample_of_a_1_hz_stream() -> None:

@@ -7,9 +7,9 @@ arm moves every geotagged frame by exactly the lever-arm difference rotated by t
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import pytest
 from replay_check import assert_replay_reproduces_every_frame
@@ -87,7 +87,7 @@ def test_the_flight_exercises_the_hard_cases(recorded: dict[int, FrameRecord]) -
 def test_another_lever_arm_moves_frames_by_the_rotated_difference(flight: Flight, same: dict[int, FrameRecord]) -> None:
     rec = read(flight.mcap)
     cfg = recording_config(rec)
-    other = dataclasses.replace(cfg, lever_arm_body_m=(0.05, -0.20, 0.35))
+    other = msgspec.structs.replace(cfg, lever_arm_body_m=(0.05, -0.20, 0.35))
     moved = {f.frame_seq: f for f in recompute(rec, other).frames}
     delta = np.subtract(other.lever_arm_body_m, cfg.lever_arm_body_m)
     checked = 0

@@ -15,6 +15,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from icgt.mavlink.link import LinkConfig, MavlinkLink, MavlinkMessage
 from icgt.mavlink.telemetry import (
+    TELEMETRY_TYPES,
     SystemTimeSample,
     TelemetryBuffer,
     TelemetryStore,
@@ -297,7 +298,13 @@ def test_mixed_mavlink1_and_mavlink2_on_one_link():
     port = free_udp_port()
     link = MavlinkLink(LinkConfig(f"udpin:127.0.0.1:{port}", request_rates=False, timesync=False))
     store = TelemetryStore()
-    store.attach(link)
+    inbox = link.subscribe_queue(TELEMETRY_TYPES)  # handed over to this thread, as the recorder's worker does
+
+    def drained() -> TelemetryStore:
+        while not inbox.empty():
+            store.ingest(inbox.get_nowait())
+        return store
+
     link.start()
     ap = AutopilotPeer(port)
     try:
@@ -313,7 +320,7 @@ def test_mixed_mavlink1_and_mavlink2_on_one_link():
         ap.send(ap.mav.local_position_ned_encode(8_040, 1, 2, -3, 0, 0, 0), v1=True)
         ap.send(ap.mav.system_time_encode(0, 8_050), v1=True)
         ap.send(ap.mav.system_time_encode(1_700_000_000_000_000, 8_060))
-        assert wait_until(lambda: store.counts()["samples"] >= 6 and store.counts()["system_time_without_utc"] == 1)
+        assert wait_until(lambda: drained().counts()["samples"] >= 6 and store.counts()["system_time_without_utc"] == 1)
         gps = store.gps.latest()
         assert gps.usable and gps.lat_deg == pytest.approx(47.3977419) and gps.h_acc_m is None  # v1: no extensions
         fused = store.fused.latest()

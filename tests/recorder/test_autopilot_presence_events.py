@@ -14,6 +14,7 @@ from pathlib import Path
 
 from icgt.ingest.reader import read
 from icgt.recorder import Recorder, RecorderConfig
+from icgt.recorder.log_file import register_channels
 from icgt.recording import McapRecorder, layout
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "mavlink"))
@@ -36,8 +37,8 @@ def test_one_outage_and_one_reboot_are_each_one_event_and_rates_are_asked_again(
     rec = Recorder(RecorderConfig().with_overrides(mavlink_url=f"udpin:127.0.0.1:{port}", out_dir=tmp_path))
     timeout_s = rec.sync_config.autopilot_timeout_s
     path = tmp_path / "presence.mcap"
-    rec.mcap = McapRecorder(path)
-    rec._register_topics()
+    rec.log_file.mcap = mcap = McapRecorder(path)
+    register_channels(mcap)
     rec._start_mavlink()
     ap = AutopilotPeer(port)
     rounds: list[int] = []  # interval requests the peer had at each phase's end
@@ -65,7 +66,7 @@ def test_one_outage_and_one_reboot_are_each_one_event_and_rates_are_asked_again(
         with rec._step():
             rec._drain(limit=None)
             rec._work_once(time.monotonic_ns())
-        rec.mcap.close()
+        mcap.close()
     events = [d for _, d in read(path).messages(layout.LINK_EVENTS)]
     presence = [e for e in events if e["kind"].startswith("autopilot_") and e["kind"] != "autopilot_second_sender"]
     assert [(e["link"], e["kind"]) for e in presence] == [

@@ -6,10 +6,11 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import msgspec
 import pytest
 
+from icgt.recorder.capture import CaptureRequestError, check_capture_request
 from icgt.recorder.config import ConfigError, RecorderConfig, load_config, parse_config
-from icgt.recorder.recorder import CaptureRequestError, check_capture_request
 
 BAD: list[tuple[str, str, object]] = [
     ("device", "url", ""),
@@ -59,7 +60,13 @@ BAD: list[tuple[str, str, object]] = [
     ("camera", "gimbal_stabilised", "true"),
     ("camera", "range_min_m", -1.0),
     ("camera", "range_max_m", 0.0),
-    ("camera", "max_wait_ms", -5.0),
+    ("camera", "max_wait_s", -5.0),
+    ("camera", "max_wait_s", 60.0),
+    ("sync", "autopilot_component", 0),
+    ("sync", "autopilot_timeout_s", 0.0),
+    ("sync", "timesync_timeout_s", -1.0),
+    ("sync", "one_way_min_delay_allowance_s", 2.0),  # 2 s: a value in milliseconds written as seconds
+    ("sync", "telemetry_retention_s", 0.0),
     ("camera", "surface_normal_enu", [0.0, 0.0]),
     ("camera", "origin", [95.0, 0.0, 0.0]),
     ("mavlink", "udp_receive_buffer_bytes", 1024),
@@ -81,23 +88,18 @@ def test_every_bad_value_is_refused_naming_the_key(section: str, key: str, value
 
 
 def test_every_key_of_every_section_is_in_the_table() -> None:
-    import dataclasses
-
-    import msgspec
-
     cfg = RecorderConfig()
     keys = {(s, k) for s, k, _ in BAD}
-    for section in ("device", "mavlink", "capture", "sensors", "output"):
+    for section in ("device", "mavlink", "capture", "sensors", "sync", "output"):
         for name in msgspec.structs.fields(getattr(cfg, section)):
             assert (section, name.name) in keys, f"no bad-value case for [{section}] {name.name}"
     checked_camera = {k for s, k, _ in BAD if s == "camera"}
-    unchecked = {f.name for f in dataclasses.fields(cfg.camera)} - checked_camera
-    # free-valued camera fields (angles are checked through mount_pitch_deg, limits through max_wait_ms)
+    unchecked = {f.name for f in msgspec.structs.fields(cfg.camera)} - checked_camera
+    # free-valued camera fields (angles are checked through mount_pitch_deg, limits through max_wait_s)
     assert unchecked <= {
         "mount_roll_deg",
         "mount_yaw_deg",
-        "range_stale_ms",
-        "stale_pose_ms",
+        "range_stale_s",
         "max_position_error_m",
         "max_gps_gap_s",
         "max_accel_m_s2",
@@ -108,7 +110,7 @@ def test_every_key_of_every_section_is_in_the_table() -> None:
         "unseen_accel_v_m_s2",
         "unseen_rate_rad_s2",
         "attitude_accuracy_deg",
-        "max_clock_uncertainty_us",
+        "max_clock_uncertainty_s",
         "blur_limit_px",
     }, unchecked
 
@@ -129,8 +131,42 @@ def test_unknown_sections_and_keys_are_refused() -> None:
         parse_config({"camra": {}}, "f")
     with pytest.raises(ConfigError, match=r"\[capture\].*unknown key `intervall_s`"):
         parse_config({"capture": {"intervall_s": 0.2}}, "f")
-    with pytest.raises(ConfigError, match=r"\[camera\] unknown key\(s\) focal_mm"):
+    with pytest.raises(ConfigError, match=r"\[camera\].*unknown key `focal_mm`"):
         parse_config({"camera": {"focal_mm": 24.0}}, "f")
+    with pytest.raises(ConfigError, match=r"\[sync\].*unknown key `autopilot_timeout_ms`"):
+        parse_config({"sync": {"autopilot_timeout_ms": 3000}}, "f")
+
+
+@pytest.mark.parametrize(
+    ("section", "old", "value", "new"),
+    [
+        ("camera", "max_wait_ms", 250, "max_wait_s = 0.25"),
+        ("camera", "range_stale_ms", 50.0, "range_stale_s = 0.05"),
+        ("camera", "max_clock_uncertainty_us", 1000, "max_clock_uncertainty_s = 0.001"),
+        ("sync", "one_way_min_delay_allowance_ms", 5, "one_way_min_delay_allowance_s = 0.005"),
+    ],
+)
+def test_a_renamed_key_is_refused_naming_its_new_name_and_value(section: str, old: str, value: float, new: str) -> None:
+    with pytest.raises(ConfigError) as err:
+        parse_config({section: {old: value}}, "old.toml")
+    text = str(err.value)
+    assert text.startswith(f"old.toml: [{section}] {old} was renamed") and new in text, text
+
+
+def test_a_retired_key_is_refused_saying_so() -> None:
+    with pytest.raises(ConfigError, match=r"\[camera\] stale_pose_ms is no longer used"):
+        parse_config({"camera": {"stale_pose_ms": 100.0}}, "f")
+
+
+def test_sync_section_reaches_the_synchroniser() -> None:
+    from icgt.sync import SyncConfig
+
+    cfg = parse_config(
+        {"sync": {"autopilot_timeout_s": 5.0, "autopilot_component": 2}, "mavlink": {"system_id": 4}}, "f"
+    )
+    sync = SyncConfig.of(cfg.sync, cfg.camera, autopilot_system=cfg.mavlink.system_id, require_signed_autopilot=False)
+    assert (sync.autopilot_timeout_s, sync.autopilot_component, sync.autopilot_system) == (5.0, 2, 4)
+    assert sync.timesync_timeout_s == 1.0 and sync.geotag == cfg.camera
 
 
 def test_a_good_file_loads_and_its_text_reads_back(tmp_path: Path) -> None:
@@ -145,7 +181,7 @@ def test_a_good_file_loads_and_its_text_reads_back(tmp_path: Path) -> None:
     import json
 
     again = parse_config({k: v for k, v in json.loads(cfg.as_text()).items() if k != "source"}, "again")
-    assert again.mavlink == cfg.mavlink and again.camera == cfg.camera
+    assert again == msgspec.structs.replace(cfg, source="again")
 
 
 def test_unreadable_files_are_clear_errors(tmp_path: Path) -> None:

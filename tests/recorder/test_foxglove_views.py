@@ -14,7 +14,7 @@ from pymavlink.dialects.v20 import common as mav
 
 from icgt.geodesy import LocalFrame, q_from_euler_zyx, q_multiply, q_rotate
 from icgt.geotag import FrameRecord
-from icgt.geotag.geotagger import GeotagConfig
+from icgt.geotag.config import GeotagConfig
 from icgt.pose import camera_to_body_quaternion, q_flu_to_enu
 from icgt.recording import layout
 from icgt.recording.views import TOPICS, FoxgloveViews, camera_calibration

@@ -14,6 +14,7 @@ from icgt.mavlink.frames import ForeignFrame, UndecodedBatch, split_foreign
 from icgt.mavlink.link import MavlinkMessage
 from icgt.recorder import Recorder
 from icgt.recorder.config import RecorderConfig
+from icgt.recorder.log_file import register_channels
 from icgt.recorder.recorder import _OTHER_SYSTEMS_BATCH
 from icgt.recording import McapRecorder, layout
 from icgt.sync import Synchroniser
@@ -38,12 +39,12 @@ def _foreign_frames(n: int) -> list[ForeignFrame]:
 
 def _record(tmp: Path, name: str, feed) -> tuple[list[dict], dict[str, int]]:
     rec = Recorder(RecorderConfig())
-    rec.mcap = McapRecorder(tmp / f"{name}.mcap")
-    rec._register_topics()
+    rec.log_file.mcap = mcap = McapRecorder(tmp / f"{name}.mcap")
+    register_channels(mcap)
     feed(rec)
     rec._drain(limit=None)
     counters = rec.sync.counters()
-    rec.mcap.close()
+    mcap.close()
     records = [d for _, d in read(tmp / f"{name}.mcap").messages(layout.MAVLINK_OTHER_SYSTEMS)]
     return records, counters
 

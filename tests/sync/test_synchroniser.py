@@ -13,7 +13,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from icgt.clocks.device_clock import ClockNotSyncedError
-from icgt.geotag.geotagger import GeotagConfig
+from icgt.geotag.config import GeotagConfig
 from icgt.protocol.messages import Exposure, Hello, Status
 from icgt.sync import SyncConfig, Synchroniser, TimesyncPairing, TimesyncReply
 
@@ -382,7 +382,7 @@ def test_sync_config_round_trips_through_json():
             gimbal_stabilised=True,
             surface_normal_enu=(0.0, -1.0, 0.0),
             origin=(47.1, 8.2, 430.5),
-            max_wait_ms=250.0,
+            max_wait_s=0.25,
         ),
         autopilot_system=3,
         autopilot_component=1,
@@ -397,10 +397,36 @@ def test_sync_config_round_trips_through_json():
     assert SyncConfig.from_json(json.loads(json.dumps(SyncConfig().to_json()))) == SyncConfig()
 
 
-def test_sync_config_from_json_ignores_unknown_keys_and_defaults_missing_ones():
+def test_sync_config_from_json_ignores_unknown_keys_and_defaults_missing_ones(caplog):
     back = SyncConfig.from_json({"autopilot_system": 7, "future_key": 1, "geotag": {"blur_limit_px": 2.0, "new": 0}})
     assert back == SyncConfig(autopilot_system=7, geotag=GeotagConfig(blur_limit_px=2.0))
+    assert "future_key, geotag.new" in caplog.text  # ignored, but said
     assert SyncConfig.from_json({}) == SyncConfig()
+
+
+def test_settings_stored_by_an_older_recorder_are_read_with_their_units_converted():
+    """Logs written before issue 26 store milliseconds and microseconds under the old names, and a retired key."""
+    old = {
+        "autopilot_system": 2,
+        "one_way_min_delay_allowance_ms": 5.0,
+        "geotag": {
+            "max_wait_ms": 250.0,
+            "range_stale_ms": 40,
+            "max_clock_uncertainty_us": 2000.0,
+            "stale_pose_ms": 100,
+        },
+    }
+    back = SyncConfig.from_json(old)
+    assert back == SyncConfig(
+        autopilot_system=2,
+        one_way_min_delay_allowance_s=0.005,
+        geotag=GeotagConfig(max_wait_s=0.25, range_stale_s=0.04, max_clock_uncertainty_s=0.002),
+    )
+
+
+def test_a_stored_value_out_of_its_range_is_an_error_not_a_default():
+    with pytest.raises(ValueError, match="autopilot_timeout_s"):
+        SyncConfig.from_json({"autopilot_timeout_s": -1.0})
 
 
 # --------------------------------------------------------------------------- Synchroniser: frames resent late

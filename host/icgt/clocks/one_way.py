@@ -11,7 +11,7 @@ fitted over a sliding window so that the crystal's drift shows in the slope.
 
 What one-way timing cannot see is the minimum delay itself (a UDP link on the same computer: well
 under a millisecond; a 57600-baud radio: the serialisation time of the shortest message, several
-milliseconds). ``min_delay_allowance_ms`` is the bound the caller states for it; ``uncertainty_ns``
+milliseconds). ``min_delay_allowance_s`` is the bound the caller states for it; ``uncertainty_ns``
 is that allowance plus ``time_boot_ms``'s millisecond truncation plus drift past the data. With
 TIMESYNC answered, the two-way filter (`AutopilotClockFilter`) is used instead: it measures the delay.
 
@@ -65,14 +65,14 @@ class OneWayClock:
         min_span_s: float = 20.0,
         max_drift_ppm: float = 500.0,
         stamp_resolution_us: float = 1000.0,
-        min_delay_allowance_ms: float = 2.0,
+        min_delay_allowance_s: float = 0.002,
     ) -> None:
         self._window_us = window_s * 1e6
         self._bucket_us = bucket_s * 1e6
         self._min_span_us = min_span_s * 1e6
         self._max_drift = max_drift_ppm * 1e-6
         self._resolution_us = stamp_resolution_us
-        self._allowance_ns = min_delay_allowance_ms * 1e6
+        self._allowance_ns = min_delay_allowance_s * 1e9
         self._buckets: deque[tuple[float, float]] = deque()  # (boot us, arrival - boot*1000 [ns]) minima
         self._bucket_key: int | None = None
         self._fit: OneWayFit | None = None

@@ -23,13 +23,14 @@ written where it came, counted and logged), chunked, zstd-compressed and indexed
 
 from __future__ import annotations
 
-import dataclasses
 import heapq
 import io
 import logging
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
+
+import msgspec
 
 from icgt.export import ExportError
 from icgt.recording import layout
@@ -74,7 +75,7 @@ def _image_messages(frame_publish_ns: int, path: Path, camera: Any, max_side_px:
     image = CompressedImage(frame_id=layout.CAMERA_FRAME, format="jpeg", data=data)
     image.timestamp.FromNanoseconds(frame_publish_ns)
     # fx = focal_length_mm * width_px / sensor_width_mm: the copy's own size gives its scaled intrinsics
-    scaled = dataclasses.replace(camera, image_width_px=w, image_height_px=h)
+    scaled = msgspec.structs.replace(camera, image_width_px=w, image_height_px=h)
     return image, camera_calibration(scaled, frame_publish_ns)
 
 

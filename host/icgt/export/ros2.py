@@ -181,7 +181,7 @@ class _Converter:
             self.cfg = recording_config(recording)
         except IcgtError as exc:
             log.warning("ros2 export: %s; camera mount taken as the default", exc)
-            from icgt.geotag.geotagger import GeotagConfig
+            from icgt.geotag.config import GeotagConfig
 
             self.cfg = GeotagConfig(origin=recording.enu_origin)
         self.q_cam_to_body = np.asarray(camera_to_body_quaternion(self.cfg))

@@ -18,7 +18,7 @@ from icgt.geodesy import (
     q_from_euler_zyx,
     q_to_matrix,
 )
-from icgt.geotag.geotagger import GeotagConfig
+from icgt.geotag.config import GeotagConfig
 from icgt.pose import frd_rotation_in_optical_axes
 
 

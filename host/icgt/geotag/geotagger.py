@@ -3,7 +3,7 @@
 The geotagger holds exposures until the autopilot sample that follows mid-exposure has
 arrived (position and attitude are interpolated between the samples on either side, not
 copied from the latest one as PX4 and ArduPilot do), then emits a FrameRecord. If the later
-sample does not come within `max_wait_ms` the frame is emitted anyway, held from the earlier
+sample does not come within `max_wait_s` the frame is emitted anyway, held from the earlier
 sample and flagged, so nothing is ever dropped.
 """
 
@@ -14,15 +14,15 @@ from bisect import bisect_left, bisect_right
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Annotated, Protocol
+from typing import Protocol
 
 import numpy as np
-from msgspec import Meta
 
 from icgt.errors import IcgtError
 from icgt.geodesy import LocalFrame, q_slerp
 from icgt.geotag import parts
 from icgt.geotag.bounds import MotionAllowance
+from icgt.geotag.config import GeotagConfig
 from icgt.geotag.position import PoseGap, PositionEstimate, PositionRules, estimate_position
 from icgt.geotag.record import FrameFlag, FrameRecord, SensorSource
 from icgt.geotag.snapshot import SNAPSHOT_AGE_SATURATED_US, ImuAtMid, snapshot_imu, snapshot_range_valid
@@ -35,10 +35,6 @@ from icgt.pose import CameraFields, CameraMounting, camera_fields
 from icgt.protocol.messages import Exposure, ExposureFlags, Imu, Range, RangeFlags
 
 GPS_FIX_3D = 3
-_Angle = Annotated[float, Meta(ge=-360.0, le=360.0)]
-_Metres = Annotated[float, Meta(ge=-10.0, le=10.0)]  # a camera within 10 m of the autopilot
-_Lat = Annotated[float, Meta(ge=-90.0, le=90.0)]
-_Lon = Annotated[float, Meta(ge=-180.0, le=180.0)]
 
 
 _NEVER_US = 1 << 62  # a backstep no device clock makes
@@ -82,58 +78,6 @@ class UtcSource(Protocol):
     def utc_at(self, device_us: float, host_ns: int) -> tuple[int, float, str] | None: ...
 
 
-@dataclass(frozen=True)
-class GeotagConfig:
-    """Camera, mounting and quality limits (the recorder's config file, [camera]).
-
-    Each field's unit is in its name; the allowed ranges are declared with the field (checked when a
-    configuration is loaded, `icgt.recorder.config`)."""
-
-    focal_length_mm: Annotated[float, Meta(gt=0.0, le=2000.0)] = 35.0
-    sensor_width_mm: Annotated[float, Meta(gt=0.0, le=200.0)] = 35.9
-    image_width_px: Annotated[int, Meta(ge=1, le=100_000)] = 7952
-    image_height_px: Annotated[int, Meta(ge=1, le=100_000)] = 5304
-    mount_roll_deg: _Angle = 0.0  # camera relative to the body, applied after "camera looks forward"
-    mount_pitch_deg: _Angle = 0.0
-    mount_yaw_deg: _Angle = 0.0
-    lever_arm_body_m: tuple[_Metres, _Metres, _Metres] = (0.0, 0.0, 0.0)  # camera from the autopilot (FRD)
-    gimbal_stabilised: bool = False  # a gimbal holds the camera level: only the body's yaw turns it
-    range_min_m: Annotated[float, Meta(ge=0.0, le=1000.0)] = 0.5
-    range_max_m: Annotated[float, Meta(gt=0.0, le=1000.0)] = 40.0
-    range_stale_ms: Annotated[float, Meta(gt=0.0, le=10_000.0)] = 50.0
-    stale_pose_ms: Annotated[float, Meta(gt=0.0)] = 100.0  # kept for old config files; the bound below decides
-    max_position_error_m: Annotated[float, Meta(gt=0.0)] = 0.10  # a larger gap part of the bound: stale_pose
-    max_gps_gap_s: Annotated[float, Meta(gt=0.0, le=60.0)] = 1.5  # a frame is held this long for the next fix
-    max_accel_m_s2: Annotated[float, Meta(ge=0.0, le=100.0)] = 3.0  # acceleration when no sample shows it
-    local_drift_m_per_s: Annotated[float, Meta(ge=0.0, le=10.0)] = 0.05  # local frame drift since the anchor
-    # The error model (icgt.geotag.bounds, docs/error-bounds.md): every bound is a 95 % bound.
-    max_interpolation_gap_s: Annotated[float, Meta(gt=0.0, le=600.0)] = 10.0  # farther apart: not interpolated
-    max_extrapolation_m: Annotated[float, Meta(ge=0.0, le=1000.0)] = 1.0  # a larger guess: no position (no_pose)
-    unseen_accel_h_m_s2: Annotated[float, Meta(ge=0.0, le=100.0)] = 2.0  # acceleration change hidden in a gap
-    unseen_accel_v_m_s2: Annotated[float, Meta(ge=0.0, le=100.0)] = 1.0
-    unseen_rate_rad_s2: Annotated[float, Meta(ge=0.0, le=100.0)] = 0.5  # body-rate change hidden in a gap
-    attitude_accuracy_deg: Annotated[float, Meta(ge=0.0, le=90.0)] = 1.0  # the autopilot's attitude, 95 %
-    max_wait_ms: Annotated[float, Meta(ge=0.0, le=10_000.0)] = 500.0
-    max_clock_uncertainty_us: Annotated[float, Meta(gt=0.0)] = 1000.0  # a worse device->host bound flags it
-    blur_limit_px: Annotated[float, Meta(gt=0.0)] = 1.0
-    surface_normal_enu: tuple[float, float, float] | None = None  # the structure's face, if known
-    origin: tuple[_Lat, _Lon, float] | None = None  # ENU origin lat, lon, alt MSL; else the first fix
-
-    def __post_init__(self) -> None:
-        if self.range_min_m >= self.range_max_m:
-            raise ValueError(f"range_min_m ({self.range_min_m}) must be below range_max_m ({self.range_max_m})")
-        if self.surface_normal_enu is not None and math.hypot(*self.surface_normal_enu) < 1e-6:
-            raise ValueError("surface_normal_enu must not be the zero vector")
-
-    @property
-    def pixel_pitch_mm(self) -> float:
-        return self.sensor_width_mm / self.image_width_px
-
-    @property
-    def focal_length_px(self) -> float:
-        return self.focal_length_mm / self.pixel_pitch_mm
-
-
 @dataclass(frozen=True, slots=True)
 class DeviceSample:
     """An IMU or range sample keyed on the device clock (TelemetryBuffer keys on `boot_us`)."""
@@ -169,6 +113,10 @@ class Geotagger:
         self._ap = autopilot_clock
         self._utc = utc
         self._cfg = config
+        # The configuration's seconds in the units the checks below compare with.
+        self._max_wait_ms = config.max_wait_s * 1e3
+        self._max_clock_uncertainty_ns = round(config.max_clock_uncertainty_s * 1e9)
+        self._range_window_us = round(config.range_stale_s * 1e6)
         self._emit = emit
         self._mounting = CameraMounting.of(config)
         self._rules = PositionRules(
@@ -264,16 +212,16 @@ class Geotagger:
         return fused is not None and fused.boot_us >= mid_boot and att is not None and att.boot_us >= mid_boot
 
     def _wait_limit_ms(self, mid_host_ns: int) -> float:
-        """How long a frame may wait for the position sample after it: ``max_wait_ms``, or longer while the
+        """How long a frame may wait for the position sample after it: ``max_wait_s``, or longer while the
         last usable GPS sample is recent enough to be interpolated from (a 1-2 Hz stream: its next sample
         is up to ``max_gps_gap_s`` away, and holding the frame beats placing it by the local position)."""
-        limit = self._cfg.max_wait_ms
+        limit = self._max_wait_ms
         latest = self._tm.fused.latest()
         mid_boot = self._ap.host_to_autopilot_us(mid_host_ns)
         if latest is not None and latest.usable and mid_boot is not None and latest.boot_us <= mid_boot:
             gap_ms = self._cfg.max_gps_gap_s * 1000.0
             if (mid_boot - latest.boot_us) / 1000.0 < gap_ms:
-                limit = max(limit, gap_ms + self._cfg.max_wait_ms)
+                limit = max(limit, gap_ms + self._max_wait_ms)
         return limit
 
     def _attitude_buffer(self) -> TelemetryBuffer[AttitudeSample]:
@@ -330,7 +278,7 @@ class Geotagger:
             unc_ns = self._dev.uncertainty_ns(mid_device_us)
         except IcgtError:
             unc_ns = 50_000_000  # no exchange yet: USB and scheduling delays of the EXPOSURE itself
-        if unc_ns > self._cfg.max_clock_uncertainty_us * 1000:
+        if unc_ns > self._max_clock_uncertainty_ns:
             flags.append(FrameFlag.CLOCK_UNSYNCED.value)
         return unc_ns
 
@@ -446,9 +394,9 @@ class Geotagger:
     ) -> tuple[float | None, float | None, SensorSource] | None:
         """(range [m] at mid or None, age of the nearest valid acquisition [ms], where it came from).
 
-        The samples held around mid first; with no valid one within ``range_stale_ms``, the exposure's own
+        The samples held around mid first; with no valid one within ``range_stale_s``, the exposure's own
         snapshot (protocol 2) if it holds a range no older than that (flagged ``range_from_snapshot``)."""
-        window_us = int(self._cfg.range_stale_ms * 1000)
+        window_us = self._range_window_us
         window = self._range.between(mid_device_us - window_us, mid_device_us + window_us)
         # The nearest valid acquisitions at or before and at or after mid, searched outwards from mid: the
         # window holds ~100 samples at 500 Hz, of which only the two nearest valid ones are used.

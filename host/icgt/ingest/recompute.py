@@ -34,9 +34,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
+import msgspec
+
 from icgt.clocks.autopilot_clock import AutopilotClockFilter
 from icgt.clocks.device_clock import DeviceClockFilter
-from icgt.geotag.geotagger import GeotagConfig
+from icgt.geotag.config import RENAMED, GeotagConfig, migrate
 from icgt.geotag.record import FrameRecord
 from icgt.ingest.reader import IngestError, LogMessage, Recording, read
 from icgt.protocol.messages import Exposure, FrameFlags, Message
@@ -75,7 +77,7 @@ def recording_sync_config(recording: Recording) -> SyncConfig:
     else:
         cfg = SyncConfig(geotag=_legacy_geotag_config(recording))
     if cfg.geotag.origin is None and recording.enu_origin is not None:
-        cfg = dataclasses.replace(cfg, geotag=dataclasses.replace(cfg.geotag, origin=recording.enu_origin))
+        cfg = msgspec.structs.replace(cfg, geotag=msgspec.structs.replace(cfg.geotag, origin=recording.enu_origin))
     return cfg
 
 
@@ -91,8 +93,8 @@ def _legacy_geotag_config(recording: Recording) -> GeotagConfig:
     calib = recording.metadata.get(layout.META_CALIBRATION)
     if not calib:
         raise IngestError(f"{recording.path}: no {layout.META_SYNC} or {layout.META_CALIBRATION} metadata")
-    known = {f.name for f in dataclasses.fields(GeotagConfig)}
-    kwargs: dict[str, Any] = {}
+    known = set(GeotagConfig.__struct_fields__) | set(RENAMED)
+    values: dict[str, Any] = {}
     for key, text in calib.items():
         if key not in known:
             continue
@@ -103,8 +105,8 @@ def _legacy_geotag_config(recording: Recording) -> GeotagConfig:
                 value = ast.literal_eval(text)
             except (ValueError, SyntaxError):
                 raise IngestError(f"{recording.path}: {layout.META_CALIBRATION} {key}={text!r} unreadable") from None
-        kwargs[key] = tuple(value) if isinstance(value, list) else value
-    return GeotagConfig(**kwargs)
+        values[key] = tuple(value) if isinstance(value, list) else value
+    return GeotagConfig(**migrate(values))
 
 
 _EXPOSURE_FIELDS = [f.name for f in dataclasses.fields(Exposure)]
@@ -136,14 +138,14 @@ class _Feeder:
     """Turns log records back into the synchroniser's inputs."""
 
     def __init__(
-        self, sync: Synchroniser, lookahead_s: float | None, max_wait_ms: float, *, requests_logged: bool
+        self, sync: Synchroniser, lookahead_s: float | None, max_wait_s: float, *, requests_logged: bool
     ) -> None:
         self.sync = sync
         self.requests_logged = requests_logged
         self.frames: list[FrameRecord] = []
         self.emitted: set[int] = set()
         self.lookahead_ns = None if lookahead_s is None else int(lookahead_s * 1e9)
-        self.wait_ns = int(max_wait_ms * 1e6)
+        self.wait_ns = round(max_wait_s * 1e9)
         self.latest_ns = 0
         self.counts: dict[str, int] = {
             "frames_in_log": 0,
@@ -283,13 +285,13 @@ def recompute(
     if isinstance(config, SyncConfig):
         cfg = config
     elif isinstance(config, GeotagConfig):
-        cfg = dataclasses.replace(recorded, geotag=config)
+        cfg = msgspec.structs.replace(recorded, geotag=config)
     else:
         cfg = recorded
     if autopilot_system is not None:
-        cfg = dataclasses.replace(cfg, autopilot_system=autopilot_system)
+        cfg = msgspec.structs.replace(cfg, autopilot_system=autopilot_system)
     if cfg.geotag.origin is None and rec.enu_origin is not None:
-        cfg = dataclasses.replace(cfg, geotag=dataclasses.replace(cfg.geotag, origin=rec.enu_origin))
+        cfg = msgspec.structs.replace(cfg, geotag=msgspec.structs.replace(cfg.geotag, origin=rec.enu_origin))
     counts = rec.topics()
     notes: list[str] = []
     if counts.get(layout.CLOCK_DEVICE_EXCHANGES, 0) == 0:
@@ -305,7 +307,7 @@ def recompute(
     else:
         notes.append("no icgt.time_bases metadata: frames before GPS time have no UTC")
     requests_logged = counts.get(layout.CLOCK_AUTOPILOT_REQUESTS, 0) > 0
-    feeder = _Feeder(sync, lookahead_s, cfg.geotag.max_wait_ms, requests_logged=requests_logged)
+    feeder = _Feeder(sync, lookahead_s, cfg.geotag.max_wait_s, requests_logged=requests_logged)
     for m in rec.records(_input_topics(counts)):
         feeder.feed(m)
     feeder.finish()

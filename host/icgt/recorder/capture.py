@@ -1,7 +1,8 @@
 """The recorder's device commands built from its configuration, checked against the device's limits first.
 
 `configure_command` is the CONFIGURE the recorder sends at start; `start_command` the START_CAPTURE a
-ground station, `icgt start` or the configured mode asks for. Both raise `icgt.device.limits.LimitError`
+ground station, `icgt start` or the configured mode asks for (`check_capture_request` first checks what
+such a request gives, `CaptureRequestError`). Both raise `icgt.device.limits.LimitError`
 (naming the limit) for anything the device would refuse, before anything is sent. `denied` is the
 MAVLink camera's answer to a refused request: COMMAND_ACK DENIED with the limit's number in
 result_param2 and the message as its reason; `announce` sends the message to the ground station as
@@ -11,6 +12,7 @@ refuses CONFIGURE anyway (a sensor that does not answer): never go on silently w
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import msgspec
@@ -21,7 +23,16 @@ from icgt.mavlink.camera import CommandResult, HandlerResult
 from icgt.protocol.messages import CaptureMode, Configure, ErrorCode, Limit, PinPolarity, StartCapture
 from icgt.recorder.config import RecorderConfig, SensorsSection
 
-__all__ = ["ConfigureRefusedError", "announce", "configure_command", "configure_refused", "denied", "start_command"]
+__all__ = [
+    "CaptureRequestError",
+    "ConfigureRefusedError",
+    "announce",
+    "check_capture_request",
+    "configure_command",
+    "configure_refused",
+    "denied",
+    "start_command",
+]
 
 
 class ConfigureRefusedError(IcgtError):
@@ -128,3 +139,32 @@ def announce(link: Any, exc: LimitError) -> None:
     link.send(link.mav.statustext_encode(_MAV_SEVERITY_WARNING, head, 0, 0))
     for seq, chunk in enumerate(chunks):
         link.send(link.mav.statustext_encode(_MAV_SEVERITY_WARNING, chunk, msg_id, seq))
+
+
+class CaptureRequestError(LimitError):
+    """A start-capture request (control socket, ground station, command line) with a value out of range."""
+
+    def __init__(self, message: str, limit: Limit = Limit.NONE) -> None:
+        super().__init__(limit, message)
+
+
+MAX_COUNT = 0xFFFF  # START_CAPTURE.count is a u16
+
+
+def check_capture_request(interval_s: Any, count: Any, shutter_pulse_s: float) -> tuple[float | None, int]:
+    """(interval [s] or None for the configured one, count) checked against the device's limits."""
+    if interval_s is not None:
+        if isinstance(interval_s, bool) or not isinstance(interval_s, int | float) or not math.isfinite(interval_s):
+            raise CaptureRequestError(f"interval_s {interval_s!r}: a number of seconds between shots is needed")
+        try:
+            check_capture(mode="interval", interval_s=interval_s, shutter_pulse_s=shutter_pulse_s, feedback=False)
+        except LimitError as exc:
+            raise CaptureRequestError(exc.message, exc.limit) from None
+    if isinstance(count, bool) or not isinstance(count, int):
+        if isinstance(count, float) and count.is_integer() and math.isfinite(count):
+            count = int(count)
+        else:
+            raise CaptureRequestError(f"count {count!r}: a whole number of shots is needed (0: until stopped)")
+    if not 0 <= count <= MAX_COUNT:
+        raise CaptureRequestError(f"count {count}: allowed 0 (until stopped) .. {MAX_COUNT}")
+    return (float(interval_s) if interval_s is not None else None), count

@@ -3,7 +3,8 @@
 Every key names its unit (``_s``, ``_hz``, ``_mm``, ``_m``, ``_deg``, ``_px``); every value is checked when
 the file is loaded, before any device or autopilot is contacted, against the range declared with its
 field here, the device's limits (`icgt.device.limits`: trigger rate, pulse widths, the feedback window,
-the rates the sensors deliver) and, for [camera], `icgt.geotag.GeotagConfig`. The schema is declared with msgspec
+the rates the sensors deliver) and, for [camera] and [sync], `icgt.geotag.GeotagConfig` and
+`icgt.sync.SyncTuning`. The schema is declared with msgspec
 (types, fixed-length arrays, numeric ranges); what a range cannot say (one value against another) is
 checked in ``__post_init__``. An error names the file, the key, the value and what is allowed.
 
@@ -51,13 +52,21 @@ Example (all keys optional; these are the defaults)::
     feedback_min_lag_s = 0.0       # the camera's shortest shutter lag (e.g. 0.04 for a body at 48 +- 2 ms)
     feedback_active_high = false
 
-    [camera]                       # intrinsics and mounting (icgt.geotag.GeotagConfig)
+    [camera]                       # intrinsics, mounting, limits (icgt.geotag.GeotagConfig: every key there)
     focal_length_mm = 35.0
     sensor_width_mm = 35.9
     image_width_px = 7952
     image_height_px = 5304
     mount_pitch_deg = 0.0
     lever_arm_body_m = [0.0, 0.0, 0.0]
+    max_wait_s = 0.5               # a frame waits this long for the telemetry sample after its mid-exposure
+
+    [sync]                         # how the autopilot's stream is believed (icgt.sync.SyncTuning)
+    # autopilot_component = 1      # unset: the first HEARTBEAT of a flight controller of system_id names it
+    autopilot_timeout_s = 3.0      # silence after which the autopilot counts as gone (back / rebooted when heard)
+    timesync_timeout_s = 1.0       # an unanswered TIMESYNC request is forgotten after this
+    one_way_min_delay_allowance_s = 0.002  # without TIMESYNC answers: the link's minimum delay (radios: more)
+    # telemetry_retention_s = 120  # unset: the device's history horizon at its rates (never shorter)
 
     [output]
     dir = "recordings"
@@ -66,7 +75,6 @@ Example (all keys optional; these are the defaults)::
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import re
 import tomllib
@@ -87,7 +95,11 @@ from icgt.device.limits import (
 )
 from icgt.errors import IcgtError
 from icgt.geotag import GeotagConfig
+from icgt.geotag.config import RENAMED as CAMERA_RENAMED
+from icgt.geotag.config import renamed_message
 from icgt.protocol.messages import LidarModel
+from icgt.sync.config import RENAMED as SYNC_RENAMED
+from icgt.sync.config import SyncTuning
 
 __all__ = [
     "CaptureSection",
@@ -221,6 +233,7 @@ class RecorderConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     capture: CaptureSection = msgspec.field(default_factory=CaptureSection)
     sensors: SensorsSection = msgspec.field(default_factory=SensorsSection)
     camera: GeotagConfig = msgspec.field(default_factory=GeotagConfig)
+    sync: SyncTuning = msgspec.field(default_factory=SyncTuning)
     output: OutputSection = msgspec.field(default_factory=OutputSection)
     source: str = "defaults"
 
@@ -293,14 +306,13 @@ def _explain(exc: msgspec.ValidationError, data: Any, source: str) -> ConfigErro
 
 def parse_config(data: dict[str, Any], source: str) -> RecorderConfig:
     """A configuration from parsed TOML (or JSON) `data`; ConfigError names the key, the value and the rule."""
-    camera = data.get("camera")
-    if isinstance(camera, dict):
-        known = {f.name for f in dataclasses.fields(GeotagConfig)}
-        unknown = sorted(set(camera) - known)
-        if unknown:  # msgspec ignores unknown fields of dataclasses; the other sections refuse them
-            raise ConfigError(
-                f"{source}: [camera] unknown key(s) {', '.join(unknown)} (known: {', '.join(sorted(known))})"
-            )
+    # A key renamed since (old files, the old docs): refused with its new name rather than "unknown key".
+    for section, renamed in (("camera", CAMERA_RENAMED), ("sync", SYNC_RENAMED)):
+        table = data.get(section)
+        for key, value in table.items() if isinstance(table, dict) else ():
+            why = renamed_message(key, value, renamed)
+            if why is not None:
+                raise ConfigError(f"{source}: [{section}] {why}")
     try:
         cfg = msgspec.convert({**data, "source": source}, RecorderConfig, dec_hook=_dec_hook)
     except msgspec.ValidationError as exc:

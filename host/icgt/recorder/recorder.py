@@ -23,7 +23,6 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import math
 import os
 import secrets
 import threading
@@ -46,7 +45,7 @@ from icgt.device import (
     DeviceLinkEvent,
     TimeSyncSample,
 )
-from icgt.device.limits import CORE, BoardLimits, LimitError, check_capture, for_board
+from icgt.device.limits import BoardLimits, LimitError, for_board
 from icgt.errors import IcgtError
 from icgt.geotag import FrameRecord
 from icgt.mavlink.camera import CameraComponent, CommandResult, HandlerResult
@@ -61,7 +60,6 @@ from icgt.protocol.messages import (
     DeviceState,
     FrameFlags,
     Hello,
-    Limit,
     Log,
     LogLevel,
     SetTime,
@@ -69,19 +67,18 @@ from icgt.protocol.messages import (
     StopCapture,
 )
 from icgt.recorder import capture, topics
-from icgt.recorder.camera_link import CAMERA_IMAGES_SCHEMA, CameraImages, build_camera
+from icgt.recorder.camera_link import CameraImages, build_camera
 from icgt.recorder.camera_settings import capture_settings
 from icgt.recorder.config import CaptureSection, RecorderConfig
 from icgt.recorder.device_stop import SelfStopWatch
+from icgt.recorder.log_file import RecorderLog, start_metadata
 from icgt.recorder.native_heap import NativeHeapTrimmer
 from icgt.recorder.resync import TakeOver, take_over
 from icgt.recorder.step_schedule import StepSchedule
 from icgt.recorder.tuning import InterpreterTuning
-from icgt.recording import McapRecorder, RecordingError, layout, views
+from icgt.recording import McapRecorder, RecordingError, layout
 from icgt.recording.views import FoxgloveViews
-from icgt.recording.writer import McapLogHandler
 from icgt.sync import SyncConfig, SyncEvent, Synchroniser
-from icgt.version import __version__
 
 log = logging.getLogger("icgt.recorder")
 
@@ -144,11 +141,15 @@ class Recorder:
         """`live_port`: also serve every channel to the Foxglove app over WebSocket on `live_host`:`live_port`."""
         self.config = config
         self._live = (live_port, live_host)
-        self.live: Any = None  # icgt.recording.live.LiveView while serving
         self._control_path = control_socket
         self._mono_to_utc_ns = time.time_ns() - time.monotonic_ns()  # fixed: log times stay monotonic
-        self.sync_config = SyncConfig(
-            geotag=config.camera,
+        self.log_file = RecorderLog(self._mono_to_utc_ns, self._fatal)
+        self._write = self.log_file.write
+        self._write_encoded = self.log_file.write_encoded
+        self._log_time = self.log_file.log_time
+        self.sync_config = SyncConfig.of(
+            config.sync,
+            config.camera,
             autopilot_system=config.mavlink.system_id,
             require_signed_autopilot=config.mavlink.signing_key_file is not None,
         )
@@ -165,7 +166,6 @@ class Recorder:
         self._images = CameraImages(config.mavlink.system_id)
         # Filled by the reader threads (deque.append is atomic), emptied by the worker only.
         self._inbox: deque[tuple[int, Any, int]] = deque()
-        self.mcap: McapRecorder | None = None
         self.device: DeviceLink | None = None
         self.mavlink: MavlinkLink | None = None
         self.camera: CameraComponent | None = None
@@ -180,11 +180,6 @@ class Recorder:
         self._nudge = threading.Event()  # wakes the worker before its scheduled step (a capture started, stop)
         self._worker: threading.Thread | None = None
         self._worker_lock = threading.Lock()  # the worker's step, and stop()'s final drain
-        # What the worker writes in one step, handed to the log at once (McapRecorder.write_many); None
-        # outside a step. Only the thread that opened it (_batch_owner) adds to it.
-        self._batch: list[tuple[str, bytes, int]] | None = None
-        self._batch_owner = 0
-        self._log_handler: McapLogHandler | None = None
         self._registered: set[str] = set()
         self._next_clock_log_ns = 0
         self._heap_trimmer = NativeHeapTrimmer()  # thread arenas' free pages back to the system (soak)
@@ -284,48 +279,19 @@ class Recorder:
                 self._waiting_for_device = False
 
     def _open_log(self, path: Path) -> None:
-        cfg = self.config
-        sinks: tuple[Any, ...] = ()
-        if self._live[0] is not None:
-            from icgt.recording.live import LiveView
-
-            self.live = LiveView(port=self._live[0], host=self._live[1])
-            sinks = (self.live,)
-        # Log times from the host's monotonic clock when each message is queued: the file in log-time order.
-        self.mcap = McapRecorder(
-            path,
-            max_chunk_interval_s=cfg.output.chunk_interval_s,
-            clock=lambda: time.monotonic_ns() + self._mono_to_utc_ns,
-            sinks=sinks,
+        metadata = start_metadata(
+            self.config, self.sync_config, signing=self._signing_key is not None, mono_to_utc_ns=self._mono_to_utc_ns
         )
-        os.chmod(path, cfg.output.file_mode)  # private by default ([output] file_mode)
+        self.log_file.open(path, self.config, metadata, self._live)
         # Until the autopilot has GPS time, UTC comes from this computer's clock (flagged as such): the
         # same fixed offset as the log times, which the recompute reads back from icgt.time_bases.
         self.sync.on_host_realtime(0, self._mono_to_utc_ns)
-        self._log_handler = McapLogHandler(self.mcap, topics.LOG)
-        logging.getLogger("icgt").addHandler(self._log_handler)
-        self._register_topics()
         self.views.start(time.monotonic_ns())
-        self.mcap.add_metadata(
-            layout.META_CONFIG,
-            {"source": cfg.source, "config": cfg.as_text(), "host_software": f"icgt {__version__}"},
-        )
-        self.mcap.add_metadata(layout.META_SYNC, {"json": json.dumps(self.sync_config.to_json())})
-        self.mcap.add_metadata(
-            layout.META_MAVLINK_SIGNING,
-            {"enabled": "true" if self._signing_key is not None else "false", "key": "not recorded"},
-        )
-        self.mcap.add_metadata(
-            layout.META_TIME_BASES,
-            {
-                "log_time": "host CLOCK_MONOTONIC + a fixed offset to UTC taken at start [ns since the Unix epoch], "
-                "when the message was logged: the file is in log-time order",
-                "publish_time": "the time of the data on the same base: receipt of an input, mid-exposure of a frame",
-                "monotonic_to_utc_offset_ns": str(self._mono_to_utc_ns),
-                "device_clock": "device microseconds since boot (DeviceClockFilter maps it to host monotonic)",
-                "autopilot_clock": "autopilot boot microseconds (TIMESYNC maps it to host monotonic)",
-            },
-        )
+
+    @property
+    def mcap(self) -> McapRecorder | None:
+        """The recording's file while it is open (`RecorderLog`)."""
+        return self.log_file.mcap
 
     def _abandon(self, path: Path) -> None:
         """A start that failed after the log was created: close everything and remove the file."""
@@ -424,84 +390,15 @@ class Recorder:
             pass
 
     def _close_log(self) -> None:
-        if self._log_handler is not None:
-            logging.getLogger("icgt").removeHandler(self._log_handler)
-        if self.mcap is not None:
-            try:
-                stats = self.mcap.close()
-                log.info("log closed: %s", stats)
-            except RecordingError as exc:
-                log.error("%s", exc)
-                self.failure = self.failure or exc
-        if self.live is not None:
-            self.live.stop()
+        failure = self.log_file.close()
+        self.failure = self.failure or failure
 
     # ------------------------------------------------------------------ log
-    def _register_topics(self) -> None:
-        assert self.mcap is not None
-        for topic, cls in layout.DEVICE_TOPIC_TYPES.items():
-            self.mcap.register_json(topic, f"icgt.device.{cls.NAME}", topics.device_schema(cls))
-        self.mcap.register_dataclass(topics.FRAMES, FrameRecord)
-        for name, kind in views.TOPICS.items():
-            self.mcap.register_protobuf(name, kind)
-        for name in (layout.CLOCK_DEVICE, layout.CLOCK_AUTOPILOT):
-            self.mcap.register_json(name, "icgt.clock.estimate", layout.ESTIMATE_SCHEMA)
-        self.mcap.register_json(layout.CLOCK_DEVICE_EXCHANGES, "icgt.clock.exchange", layout.EXCHANGE_SCHEMA)
-        self.mcap.register_json(
-            layout.CLOCK_AUTOPILOT_REQUESTS, "icgt.clock.timesync_request", layout.TIMESYNC_REQUEST_SCHEMA
-        )
-        self.mcap.register_json(layout.CLOCK_UTC, "icgt.clock.utc", layout.UTC_SCHEMA)
-        self.mcap.register_json(layout.LINK_EVENTS, "icgt.link_event", layout.LINK_EVENT_SCHEMA)
-        self.mcap.register_json(layout.COUNTERS, "icgt.counters", layout.COUNTERS_SCHEMA)
-        self.mcap.register_json(layout.MAVLINK_OTHER_SYSTEMS, "icgt.mavlink_raw", layout.MAVLINK_RAW_SCHEMA)
-        self.mcap.register_json(layout.CAMERA_IMAGES, "icgt.camera_image", CAMERA_IMAGES_SCHEMA)
-
-    def _log_time(self, host_ns: int) -> int:
-        return host_ns + self._mono_to_utc_ns
-
-    def _write(self, topic: str, message: Any, host_ns: int) -> None:
-        if self.mcap is None:
-            return
-        try:
-            batch = self._batch
-            if batch is not None and self._batch_owner == threading.get_ident():
-                batch.append((topic, self.mcap.encode(topic, message), self._log_time(host_ns)))
-            else:
-                self.mcap.write(topic, message, publish_time_ns=self._log_time(host_ns))
-        except RecordingError as exc:
-            self._fatal(exc)
-
-    def _write_encoded(self, topic: str, data: bytes, host_ns: int) -> None:
-        if self.mcap is None:
-            return
-        batch = self._batch
-        if batch is not None and self._batch_owner == threading.get_ident():
-            batch.append((topic, data, self._log_time(host_ns)))
-            return
-        try:
-            self.mcap.write_encoded(topic, data, publish_time_ns=self._log_time(host_ns))
-        except RecordingError as exc:
-            self._fatal(exc)
-
     @contextlib.contextmanager
     def _step(self) -> Iterator[None]:
         """One worker step (or stop()'s last drains): under the worker lock, its writes handed over at its end."""
-        with self._worker_lock:
-            self._batch, self._batch_owner = [], threading.get_ident()
-            try:
-                yield
-            finally:
-                self._commit_writes()
-                self._batch = None
-
-    def _commit_writes(self) -> None:
-        batch = self._batch
-        if batch and self.mcap is not None:
-            self._batch = []
-            try:
-                self.mcap.write_many(batch)
-            except RecordingError as exc:
-                self._fatal(exc)
+        with self._worker_lock, self.log_file.batch():
+            yield
 
     def _fatal(self, exc: IcgtError) -> None:
         if self.failure is None:
@@ -534,7 +431,7 @@ class Recorder:
             },
         )
         c = self.config.camera
-        self.mcap.add_metadata(layout.META_CALIBRATION, {k: json.dumps(v) for k, v in asdict(c).items()})
+        self.mcap.add_metadata(layout.META_CALIBRATION, {k: json.dumps(v) for k, v in msgspec.to_builtins(c).items()})
         log.info(
             "device: %s on %s, firmware %s, serial %s",
             board,
@@ -634,7 +531,7 @@ class Recorder:
         anything is sent."""
         assert self.device is not None
         c = self._capture
-        interval_s, count = check_capture_request(interval_s, count, c.shutter_pulse_s)
+        interval_s, count = capture.check_capture_request(interval_s, count, c.shutter_pulse_s)
         config = msgspec.structs.replace(self.config, sensors=self._sensors, capture=c)
         cmd, mode = capture.start_command(config, interval_s, count, self._limits())  # LimitError: nothing sent
         interval_us = cmd.interval_us
@@ -982,37 +879,6 @@ def _wait_clear(flag: threading.Event, timeout_s: float) -> bool:
 
 class StopNotDeliveredError(IcgtError):
     """The recording ended with capture running on a device the recorder could not reach to stop it."""
-
-
-class CaptureRequestError(LimitError):
-    """A start-capture request (control socket, ground station, command line) with a value out of range."""
-
-    def __init__(self, message: str, limit: Limit = Limit.NONE) -> None:
-        super().__init__(limit, message)
-
-
-MIN_INTERVAL_S = CORE.min_interval_s  # the firmware's trigger: 20 fps at most (icgt.device.limits)
-MAX_INTERVAL_S = CORE.max_interval_s
-MAX_COUNT = 0xFFFF  # START_CAPTURE.count is a u16
-
-
-def check_capture_request(interval_s: Any, count: Any, shutter_pulse_s: float) -> tuple[float | None, int]:
-    """(interval [s] or None for the configured one, count) checked against the device's limits."""
-    if interval_s is not None:
-        if isinstance(interval_s, bool) or not isinstance(interval_s, int | float) or not math.isfinite(interval_s):
-            raise CaptureRequestError(f"interval_s {interval_s!r}: a number of seconds between shots is needed")
-        try:
-            check_capture(mode="interval", interval_s=interval_s, shutter_pulse_s=shutter_pulse_s, feedback=False)
-        except LimitError as exc:
-            raise CaptureRequestError(exc.message, exc.limit) from None
-    if isinstance(count, bool) or not isinstance(count, int):
-        if isinstance(count, float) and count.is_integer() and math.isfinite(count):
-            count = int(count)
-        else:
-            raise CaptureRequestError(f"count {count!r}: a whole number of shots is needed (0: until stopped)")
-    if not 0 <= count <= MAX_COUNT:
-        raise CaptureRequestError(f"count {count}: allowed 0 (until stopped) .. {MAX_COUNT}")
-    return (float(interval_s) if interval_s is not None else None), count
 
 
 def _output_dir(path: Path) -> Path:

@@ -47,7 +47,7 @@ from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
 from icgt.geodesy import Q_NED_TO_ENU, LocalFrame, q_multiply
 from icgt.geotag import FrameRecord
-from icgt.geotag.geotagger import GeotagConfig
+from icgt.geotag.config import GeotagConfig
 from icgt.pose import (
     Q_FRD_TO_FLU,
     camera_to_body_quaternion,

@@ -23,7 +23,8 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from icgt.geodesy import FloatArray, LocalFrame, q_multiply
-from icgt.geotag.geotagger import GeotagConfig, Geotagger
+from icgt.geotag.config import GeotagConfig
+from icgt.geotag.geotagger import Geotagger
 from icgt.geotag.record import FrameFlag, FrameRecord
 from icgt.mavlink.link_types import MavlinkMessage
 from icgt.mavlink.telemetry import TelemetryStore

@@ -1,6 +1,7 @@
 """The synchroniser core: one I/O-free object fed by the live recorder and by the offline recompute."""
 
-from icgt.sync.synchroniser import SyncConfig, SyncEvent, Synchroniser
+from icgt.sync.config import SyncConfig, SyncTuning
+from icgt.sync.synchroniser import SyncEvent, Synchroniser
 from icgt.sync.timesync import TimesyncPairing, TimesyncReply
 
-__all__ = ["SyncConfig", "SyncEvent", "Synchroniser", "TimesyncPairing", "TimesyncReply"]
+__all__ = ["SyncConfig", "SyncEvent", "SyncTuning", "Synchroniser", "TimesyncPairing", "TimesyncReply"]

@@ -26,7 +26,6 @@ recompute knows when to poll.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -38,55 +37,20 @@ from icgt.clocks.device_clock import DeviceClockFilter, ExchangeStatus, PpsUtcMa
 from icgt.clocks.one_way import OneWayClock
 from icgt.device.history import NOMINAL_RATES, DeviceRates, telemetry_retention_s
 from icgt.geotag.clock_views import AutopilotClockView, UtcView, add_pps_edge
-from icgt.geotag.geotagger import GeotagConfig, Geotagger
+from icgt.geotag.geotagger import Geotagger
 from icgt.geotag.record import FrameRecord
 from icgt.mavlink.autopilot_rules import BOOT_CLOCK_TYPES, AutopilotPresence, Freshness, PresenceChange
 from icgt.mavlink.link_types import MavlinkMessage
 from icgt.mavlink.telemetry import TelemetryStore
 from icgt.protocol.messages import DeviceState, Exposure, Hello, Imu, Message, Pps, Range, Status
+from icgt.sync.config import SyncConfig
 from icgt.sync.timesync import TimesyncPairing, TimesyncReply
 
-__all__ = ["SyncConfig", "SyncEvent", "Synchroniser"]
+__all__ = ["SyncEvent", "Synchroniser"]
 
 log = logging.getLogger(__name__)
 
 UNANSWERED_TIMESYNC_WARNING = 10  # requests without any answer before the log says so (once)
-
-
-@dataclass(frozen=True)
-class SyncConfig:
-    """Everything that decides what the synchroniser makes of its inputs (stored in the log as JSON)."""
-
-    geotag: GeotagConfig = dataclasses.field(default_factory=GeotagConfig)
-    autopilot_system: int = 1  # the vehicle's MAVLink system id
-    autopilot_component: int | None = None  # None: the first HEARTBEAT of a flight controller of that system
-    autopilot_timeout_s: float = 3.0  # silence after which the autopilot counts as gone (and back when heard)
-    timesync_timeout_s: float = 1.0  # an unanswered TIMESYNC request is forgotten after this
-    # Without TIMESYNC answers the autopilot clock comes from message arrival times; this bounds the
-    # link's minimum delay, which one-way timing cannot see (companion UART/UDP: < 1 ms; radios: more).
-    one_way_min_delay_allowance_ms: float = 2.0
-    # With MAVLink signing configured: a message with the autopilot's system id whose signature was not valid
-    # (unsigned, another key, replayed) is not believed (counted as autopilot_unsigned_messages).
-    require_signed_autopilot: bool = False
-    # How long autopilot telemetry is kept [s of boot clock]; None: the device's history horizon at the rates
-    # its DEVICE_STATE reports (at 5 fps before it has, `icgt.device.history`). Never shorter than that.
-    telemetry_retention_s: float | None = None
-
-    def to_json(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_json(cls, data: Mapping[str, Any]) -> SyncConfig:
-        """Inverse of `to_json` (lists back to tuples); unknown keys are ignored, missing ones default."""
-        geo_fields = {f.name for f in dataclasses.fields(GeotagConfig)}
-        geo: dict[str, Any] = {
-            k: tuple(v) if isinstance(v, list) else v
-            for k, v in dict(data.get("geotag") or {}).items()
-            if k in geo_fields
-        }
-        top = {f.name for f in dataclasses.fields(cls)} - {"geotag"}
-        rest = {k: v for k, v in data.items() if k in top}
-        return cls(geotag=GeotagConfig(**geo), **rest)
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,7 +81,7 @@ class Synchroniser:
         self.config = cfg = config or SyncConfig()
         self.device_clock = device_clock or DeviceClockFilter(slow_interval_s=0.1, refit_interval_s=0.5)
         self.autopilot_clock = autopilot_clock or AutopilotClockFilter()
-        self.autopilot_one_way = OneWayClock(min_delay_allowance_ms=cfg.one_way_min_delay_allowance_ms)
+        self.autopilot_one_way = OneWayClock(min_delay_allowance_s=cfg.one_way_min_delay_allowance_s)
         self.autopilot_time = AutopilotTimeMap(self.autopilot_clock, self.autopilot_one_way)
         self.utc = UtcMapper(self.autopilot_time)
         self.pps = PpsUtcMapper()

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from icgt.geodesy import LocalFrame
-from icgt.geotag.geotagger import GeotagConfig
+from icgt.geotag.config import GeotagConfig
 from icgt.geotag.parts import attitude_fields
 from icgt.geotag.record import FrameFlag, FrameRecord
 from icgt.pose import CameraMounting, camera_fields

@@ -115,15 +115,14 @@ class LinkConfig:
 
     ``system_id`` is the vehicle's system id: the camera component shares it (ground stations only list
     cameras of the vehicle's own system) and it is the autopilot's unless ``autopilot_system`` says
-    otherwise. ``autopilot_component`` None means: learn it from the first HEARTBEAT of that system whose
-    autopilot field is not MAV_AUTOPILOT_INVALID.
+    otherwise. Which component of it is the autopilot is the core's to say (`MavlinkLink.autopilot_hint`,
+    from the synchroniser's `AutopilotPresence`; ``SyncConfig.autopilot_component``).
     """
 
     url: str
     system_id: int = 1
     component_id: int = MAV_COMP_ID_CAMERA
     autopilot_system: int | None = None
-    autopilot_component: int | None = None
     baud: int = 115200  # serial only, when the URL does not say ("/dev/ttyAMA0,921600" does)
     reopen_delay_s: float = 1.0
     request_rates: bool = True

@@ -50,9 +50,7 @@ class Handler:
 class Rig:
     def __init__(self, tmp_path: Path) -> None:
         self.port = free_udp_port()
-        self.link = MavlinkLink(
-            LinkConfig(f"udpin:127.0.0.1:{self.port}", request_rates=False, timesync=False, link_timeout_s=5.0)
-        )
+        self.link = MavlinkLink(LinkConfig(f"udpin:127.0.0.1:{self.port}", request_rates=False, timesync=False))
         self.config = RecorderConfig(capture=CaptureSection(interval_s=0.5, shutter_pulse_s=0.02, burst_s=2.0))
         self.capture = self.config.capture
         settings = capture_settings(lambda: self.capture, self._put, lambda: self.config, lambda: CORE)

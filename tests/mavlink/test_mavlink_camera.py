@@ -58,9 +58,7 @@ class FakeRecorder:
 class Rig:
     def __init__(self, tmp_path):
         self.port = free_udp_port()
-        self.link = MavlinkLink(
-            LinkConfig(f"udpin:127.0.0.1:{self.port}", request_rates=False, timesync=False, link_timeout_s=5.0)
-        )
+        self.link = MavlinkLink(LinkConfig(f"udpin:127.0.0.1:{self.port}", request_rates=False, timesync=False))
         self.recorder = FakeRecorder()
         self.rejected: list[RejectedCommand] = []
         self.records: list[CommandRecord] = []

@@ -1,6 +1,7 @@
-"""MavlinkLink against pymavlink peers over 127.0.0.1: liveness events, stream-rate requests, TIMESYNC
-requests (paired by the synchroniser, as in the recorder), robustness to garbage and to a TCP peer going
-away, subscriptions, and a clean stop."""
+"""MavlinkLink against pymavlink peers over 127.0.0.1, with a synchroniser fed and its presence changes hinted
+to the link as the recorder does: stream-rate requests (again after an outage or a reboot the synchroniser saw),
+TIMESYNC requests (paired by the synchroniser), robustness to garbage and to a TCP peer going away,
+subscriptions, and a clean stop."""
 
 from __future__ import annotations
 
@@ -12,31 +13,50 @@ import pytest
 from mavlink_peers import AutopilotPeer, free_udp_port, wait_until
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from icgt.mavlink.autopilot_rules import REBOOT_SILENCE_NS
+from icgt.mavlink.autopilot_rules import REBOOT_SILENCE_NS, AutopilotState
 from icgt.mavlink.frames import UndecodedBatch
 from icgt.mavlink.link import (
     DEFAULT_STREAM_RATES,
     LinkConfig,
     LinkError,
     LinkEventKind,
-    LinkState,
     MavlinkEvent,
     MavlinkLink,
     MavlinkMessage,
 )
-from icgt.sync import SyncConfig, Synchroniser, TimesyncReply
+from icgt.sync import SyncConfig, SyncEvent, Synchroniser, TimesyncReply
 
 RATE_IDS = [r.message_id for r in DEFAULT_STREAM_RATES]
 
 
 class Recorder:
-    """Collects the link's events and feeds a synchroniser as the recorder does (requests, then messages)."""
+    """Collects the link's events and feeds a synchroniser as the recorder does (requests, then messages), handing
+    the synchroniser's presence changes to the link as hints."""
 
-    def __init__(self, timesync_timeout_s: float = 1.0):
+    def __init__(self, timesync_timeout_s: float = 1.0, autopilot_timeout_s: float = 0.3):
         self.events: list[MavlinkEvent] = []
         self.timesync: list[TimesyncReply] = []
+        self.presence: list[SyncEvent] = []
+        self.link: MavlinkLink | None = None
         self.lock = threading.Lock()
-        self.sync = Synchroniser(SyncConfig(timesync_timeout_s=timesync_timeout_s))
+        self.sync = Synchroniser(
+            SyncConfig(timesync_timeout_s=timesync_timeout_s, autopilot_timeout_s=autopilot_timeout_s)
+        )
+
+    def _hint(self) -> None:
+        for event in self.sync.take_events():
+            if event.presence is not None:
+                self.presence.append(event)
+                if self.link is not None:
+                    ap = self.sync.autopilot
+                    self.link.autopilot_hint(event.presence, ap.system, ap.component, event.host_ns)
+
+    def presence_of(self, kind: str) -> list[SyncEvent]:
+        """The synchroniser's presence changes of `kind` so far (polled now, as the recorder's worker does)."""
+        with self.lock:
+            self.sync.poll(time.monotonic_ns())
+            self._hint()
+            return [e for e in self.presence if e.kind == kind]
 
     def on_event(self, e: MavlinkEvent) -> None:
         with self.lock:
@@ -51,6 +71,7 @@ class Recorder:
             reply = self.sync.on_mavlink(rec.msg, rec.rx_ns)
             if reply is not None:
                 self.timesync.append(reply)
+            self._hint()
 
     def unanswered(self) -> int:
         with self.lock:
@@ -68,10 +89,11 @@ class Recorder:
 
 def make_link(rec: Recorder | None = None, **overrides) -> tuple[MavlinkLink, int]:
     port = free_udp_port()
-    cfg = dict(url=f"udpin:127.0.0.1:{port}", link_timeout_s=0.3, rate_ack_timeout_s=0.1, timesync_fast_hz=20.0)
+    cfg = dict(url=f"udpin:127.0.0.1:{port}", rate_ack_timeout_s=0.1, timesync_fast_hz=20.0)
     cfg.update(overrides)
     rec = rec or Recorder()
     link = MavlinkLink(LinkConfig(**cfg), on_event=rec.on_event, on_timesync_sent=rec.on_timesync_sent)
+    rec.link = link
     link.subscribe(rec.on_message)
     return link, port
 
@@ -85,14 +107,15 @@ def our_threads() -> list[str]:
     return [t.name for t in threading.enumerate() if t.name.startswith("icgt-")]
 
 
-def test_link_loss_and_return_with_outage_and_rates_resent(recorder):
-    link, port = make_link(recorder, link_timeout_s=0.4)
+def test_link_loss_and_return_with_outage_and_rates_resent():
+    recorder = Recorder(autopilot_timeout_s=0.4)
+    link, port = make_link(recorder)
     link.start()
     ap = AutopilotPeer(port)
     try:
         ap.stream(hz=50)
-        assert wait_until(lambda: LinkEventKind.AUTOPILOT_SEEN in recorder.kinds())
-        assert link.autopilot == (1, 1) and link.state is LinkState.UP
+        assert wait_until(lambda: recorder.presence_of("autopilot_seen"))
+        assert link.autopilot == (1, 1) and recorder.sync.autopilot.state is AutopilotState.UP
         assert wait_until(lambda: len(link.rate_results()) == len(RATE_IDS), timeout=5.0)
         assert all(r.accepted for r in link.rate_results())
         requested = [m for m, _, _ in ap.interval_requests]
@@ -102,19 +125,21 @@ def test_link_loss_and_return_with_outage_and_rates_resent(recorder):
 
         ap.silence()
         silent_at = time.monotonic_ns()
-        assert wait_until(lambda: any(e.host_ns > silent_at for e in recorder.of(LinkEventKind.AUTOPILOT_LOST)))
-        lost = next(e for e in recorder.of(LinkEventKind.AUTOPILOT_LOST) if e.host_ns > silent_at)
+        assert wait_until(lambda: any(e.host_ns > silent_at for e in recorder.presence_of("autopilot_lost")))
+        lost = next(e for e in recorder.presence_of("autopilot_lost") if e.host_ns > silent_at)
         assert 0.4e9 <= lost.outage_ns < 1.0e9
+        assert recorder.sync.autopilot.state is AutopilotState.LOST
         time.sleep(0.4)
         n_before = len(ap.interval_requests)
         ap.stream()
-        assert wait_until(lambda: any(e.host_ns > silent_at for e in recorder.of(LinkEventKind.AUTOPILOT_BACK)))
-        back = next(e for e in recorder.of(LinkEventKind.AUTOPILOT_BACK) if e.host_ns > silent_at)
+        assert wait_until(lambda: any(e.host_ns > silent_at for e in recorder.presence_of("autopilot_back")))
+        back = next(e for e in recorder.presence_of("autopilot_back") if e.host_ns > silent_at)
         gap = back.host_ns - silent_at
-        assert back.outage_ns is not None and abs(back.outage_ns - gap) < 0.1e9 and back.outage_ns >= 0.75e9
+        assert abs(back.outage_ns - gap) < 0.1e9 and back.outage_ns >= 0.75e9
         assert wait_until(lambda: len(ap.interval_requests) >= n_before + len(RATE_IDS), timeout=5.0)
         assert [m for m, _, _ in ap.interval_requests[n_before:]][: len(RATE_IDS)] == RATE_IDS
-        assert link.stats().outages >= 1
+        assert recorder.sync.counters()["autopilot_outages"] == 1
+        assert [len(recorder.presence_of(k)) for k in ("autopilot_seen", "autopilot_lost", "autopilot_back")] == [1] * 3
     finally:
         ap.close()
         link.stop()
@@ -145,8 +170,9 @@ def test_rate_requests_are_retried_until_acked_and_bounded(recorder):
         link.stop()
 
 
-def test_reboot_detected_and_rates_requested_again(recorder):
-    link, port = make_link(recorder, link_timeout_s=5.0)
+def test_reboot_detected_and_rates_requested_again():
+    recorder = Recorder(autopilot_timeout_s=5.0)
+    link, port = make_link(recorder)
     link.start()
     ap = AutopilotPeer(port)
     try:
@@ -159,17 +185,18 @@ def test_reboot_detected_and_rates_requested_again(recorder):
         ap.resume()
         ap.mav.seq = 0
         ap.send(ap.mav.attitude_encode(1_200, 0, 0, 0, 0, 0, 0))  # boot clock restarted
-        assert wait_until(lambda: LinkEventKind.AUTOPILOT_REBOOTED in recorder.kinds())
+        assert wait_until(lambda: recorder.presence_of("autopilot_rebooted"))
         assert wait_until(lambda: len(ap.interval_requests) >= n + len(RATE_IDS))
     finally:
         ap.close()
         link.stop()
 
 
-def test_a_stray_sender_with_the_autopilots_ids_over_udp_is_counted_not_believed(recorder):
+def test_a_stray_sender_with_the_autopilots_ids_over_udp_is_counted_not_believed():
     """Issue 30: ~70 GLOBAL_POSITION_INT with ids 1:1 and time_boot_ms near 1e9 from another socket while the
     autopilot streams: no reboot (link or synchroniser), no rate-request storm, none of them in the poses."""
-    link, port = make_link(recorder, link_timeout_s=5.0)
+    recorder = Recorder(autopilot_timeout_s=5.0)
+    link, port = make_link(recorder)
     link.start()
     ap = AutopilotPeer(port)
     stray = AutopilotPeer(port)
@@ -188,9 +215,8 @@ def test_a_stray_sender_with_the_autopilots_ids_over_udp_is_counted_not_believed
         stray.close()
         ap.close()
         link.stop()
-    assert LinkEventKind.AUTOPILOT_REBOOTED not in recorder.kinds()
+    assert not recorder.presence_of("autopilot_rebooted")
     assert len(ap.interval_requests) == n  # no rates requested again
-    assert link.stats().second_sender_frames >= 70
     with recorder.lock:
         counters = recorder.sync.counters()
         fused = recorder.sync.telemetry.fused.samples()

@@ -63,7 +63,7 @@ def test_a_datagram_is_stamped_with_its_arrival_while_the_reader_is_busy() -> No
 def test_an_owner_pumped_link_has_no_threads_and_pump_hands_on_each_datagram_with_its_arrival() -> None:
     """owner_pumps (the recorder's worker reads the UDP link): no reader or service thread; pump() reads
     every datagram waiting, in order, each stamped with its arrival (here 300 ms before the pump), and runs
-    the service step (the autopilot seen, a TIMESYNC request sent)."""
+    the service step (a TIMESYNC request sent)."""
     port = _free_udp_port()
     sent_ts: list[int] = []
     link = MavlinkLink(LinkConfig(url=f"udpin:127.0.0.1:{port}", owner_pumps=True), on_timesync_sent=sent_ts.append)
@@ -93,7 +93,7 @@ def test_an_owner_pumped_link_has_no_threads_and_pump_hands_on_each_datagram_wit
     assert [m.type for m in got] == ["HEARTBEAT"] + ["SYSTEM_TIME"] * 21
     assert [m.msg.time_boot_ms for m in got[1:]] == [*range(1000, 1020), 2000]
     assert all(sent_ns <= m.rx_ns < sent_ns + 100_000_000 < pumped_ns for m in got[:-1]), "stamped at the pump"
-    assert link.state.value == "up" and sent_ts, "the service step did not run"
+    assert sent_ts, "the service step did not run"
 
 
 def test_an_autopilot_already_sending_is_stamped_on_arrival_from_its_first_datagram() -> None:

@@ -222,7 +222,7 @@ def test_timesync_unanswered_is_reported_once_after_ten_unanswered_requests():
     assert sync.counters()["timesync_unanswered"] == 9 and sync.take_events() == []
     sync.on_timesync_request(t + 3 * S)
     sync.poll(t + 5 * S)
-    (event,) = sync.take_events()
+    (event,) = [e for e in sync.take_events() if e.presence is None]  # not the autopilot's silence (lost)
     assert event.kind == "timesync_unanswered" and event.host_ns == t + 5 * S
     assert "none of 10 TIMESYNC requests" in event.detail
     for k in range(20):
@@ -241,7 +241,7 @@ def test_no_timesync_warning_once_the_autopilot_has_answered():
     for k in range(12):
         sync.on_timesync_request(t + S + k)
     sync.poll(t + 5 * S)
-    assert [e.kind for e in sync.take_events()] == ["autopilot_seen"]
+    assert [e.kind for e in sync.take_events()] == ["autopilot_seen", "autopilot_lost"]  # silent for 5 s
 
 
 # --------------------------------------------------------------------------- Synchroniser: device reboots
@@ -575,3 +575,42 @@ def test_a_resent_exposure_whose_samples_are_gone_is_ranged_and_oriented_from_it
         assert too_old_or_none.range_m is None and too_old_or_none.range_source == "none"
         assert {"resent", "range_invalid", "range_samples_lost"} <= set(too_old_or_none.flags)
     assert frames[3].imu_source == "snapshot" and frames[4].imu_source == "samples"  # v1: the nearest sample held
+
+
+def test_each_outage_and_reboot_is_one_presence_change_with_its_outage():
+    """The one autopilot state machine: lost once per silence longer than autopilot_timeout_s (at a poll), back (or
+    rebooted) once at its next message, each with the silence it ended; a reboot without a loss has no outage."""
+    from icgt.mavlink.autopilot_rules import AutopilotState, PresenceChange
+
+    sync = Synchroniser(SyncConfig(autopilot_timeout_s=2.0))
+    assert sync.autopilot.state is AutopilotState.WAITING
+    t = 100 * S
+    sync.on_mavlink(attitude(80_000), t)
+    sync.on_mavlink(heartbeat(), t)
+    for k in range(1, 31):  # polled every 100 ms through 3 s of silence
+        sync.poll(t + k * 100_000_000)
+    assert sync.autopilot.state is AutopilotState.LOST
+    sync.on_mavlink(attitude(83_500), t + 3_500_000_000)  # back after 3.5 s
+    sync.poll(t + 3_600_000_000)
+    sync.on_mavlink(attitude(1_500), t + 5_100_000_000)  # rebooted after 1.6 s: no loss
+    sync.poll(t + 5_200_000_000)
+    events = sync.take_events()
+    assert [e.presence for e in events] == [
+        PresenceChange.SEEN,
+        PresenceChange.LOST,
+        PresenceChange.BACK,
+        PresenceChange.REBOOTED,
+    ]
+    seen, lost, back, rebooted = events
+    assert lost.kind == "autopilot_lost" and lost.host_ns == t + 2_100_000_000 and lost.outage_ns == 2_100_000_000
+    assert back.outage_ns == 3_500_000_000 and rebooted.outage_ns == 0 and seen.outage_ns == 0
+    assert sync.autopilot.state is AutopilotState.UP
+    assert sync.counts["autopilot_outages"] == 1 and sync.counts["autopilot_reboots"] == 1
+    # a reboot that ends a loss closes that outage
+    sync.on_mavlink(attitude(3_500), t + 7_100_000_000)  # the rebooted autopilot's clock runs on
+    for k in range(1, 31):
+        sync.poll(t + 7_100_000_000 + k * 100_000_000)
+    sync.on_mavlink(attitude(200), t + 10_600_000_000)
+    lost, rebooted = sync.take_events()
+    assert lost.presence is PresenceChange.LOST and rebooted.presence is PresenceChange.REBOOTED
+    assert rebooted.outage_ns == 3_500_000_000

@@ -1,7 +1,7 @@
 """MAVLink side of the host synchroniser: the autopilot link, its telemetry, and the camera component.
 
-* `MavlinkLink` (link.py): one pymavlink connection with a stamping reader thread, autopilot liveness
-  events, a TIMESYNC client and SET_MESSAGE_INTERVAL stream-rate requests.
+* `MavlinkLink` (link.py): one pymavlink connection with a stamping reader thread, a TIMESYNC client and
+  SET_MESSAGE_INTERVAL stream-rate requests (link_scheduler.py), driven by the core's presence hints.
 * `TelemetryStore` / `TelemetryBuffer` and the sample types (telemetry.py): SI-unit samples with the
   autopilot's boot-clock stamp and the host receipt time; "never a position without a 3D fix".
 * `CameraComponent` (camera.py): MAVLink Camera Protocol v2 as component 100, driven by the recorder's
@@ -26,7 +26,6 @@ from icgt.mavlink.link import (
     LinkConfig,
     LinkError,
     LinkEventKind,
-    LinkState,
     LinkStats,
     MavlinkEvent,
     MavlinkLink,
@@ -63,7 +62,6 @@ __all__ = [
     "LinkConfig",
     "LinkError",
     "LinkEventKind",
-    "LinkState",
     "LinkStats",
     "LocalPositionSample",
     "MavlinkEvent",

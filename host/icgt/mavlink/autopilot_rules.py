@@ -1,9 +1,11 @@
-"""Which MAVLink messages come from the autopilot, and when it (re)appeared: the rules, in one place.
+"""Which MAVLink messages come from the autopilot, and when it (re)appeared or went: the rules, in one place.
 
-Used by the live link (to schedule stream-rate requests) and by the synchroniser (to decide which
-TIMESYNC replies and telemetry it takes), so the recorder and the offline recompute apply the same
-rules to the same messages. Pure functions and a small state machine over (message, arrival time):
-no I/O, no threads.
+The one autopilot state machine (seen / lost / back / rebooted, one timeout): the synchroniser owns it (to
+decide which TIMESYNC replies and telemetry it takes, and to say each change once on /icgt/link_events), and
+the recorder hands its changes to the MAVLink link as hints (`icgt.mavlink.link_scheduler`: stream rates asked
+again, TIMESYNC fast again), so the recorder and the offline recompute apply the same rules to the same
+messages and the link keeps no second account. Pure functions and a small state machine over (message,
+arrival time): no I/O, no threads.
 """
 
 from __future__ import annotations
@@ -25,7 +27,9 @@ __all__ = [
     "YOUNG_EARLY_TOLERANCE_NS",
     "YOUNG_STREAM_NS",
     "AutopilotPresence",
+    "AutopilotState",
     "Freshness",
+    "PresenceChange",
     "boot_clock_ms",
     "is_autopilot_heartbeat",
 ]
@@ -88,6 +92,28 @@ class Freshness(enum.Enum):
     SECOND_SENDER = "autopilot_second_sender"  # the autopilot's ids, but not its stream: not believed
 
 
+class AutopilotState(enum.Enum):
+    """What is known of the autopilot now (`AutopilotPresence.state`)."""
+
+    WAITING = "waiting"  # never heard from it
+    UP = "up"  # messages arriving
+    LOST = "lost"  # nothing for the timeout
+
+
+class PresenceChange(enum.Enum):
+    """A change of the autopilot's presence, as said on /icgt/link_events (each once) and hinted to the link."""
+
+    SEEN = Freshness.SEEN.value
+    LOST = "autopilot_lost"  # silent for longer than the timeout (`AutopilotPresence.expire`)
+    BACK = Freshness.BACK.value
+    REBOOTED = Freshness.REBOOTED.value
+
+    @property
+    def appeared(self) -> bool:
+        """The autopilot is (again, or afresh) there: its streams may be at defaults, its clock may differ."""
+        return self is not PresenceChange.LOST
+
+
 @dataclass
 class AutopilotPresence:
     """Tracks one autopilot (system id given, component learnt from its first HEARTBEAT) over its messages.
@@ -116,6 +142,8 @@ class AutopilotPresence:
     last_seq: int | None = None
     seq_counts: bool = False  # its sequence numbers have been seen to advance (a sender that keeps them at 0 never)
     second_sender_messages: int = 0
+    lost: bool = False  # `expire` said so, and no message since
+    silence_ns: int = 0
     _boot_by_type: dict[str, int] = field(default_factory=dict)
     _origins: deque[tuple[int, int]] = field(default_factory=deque)  # (rx, origin) rising: the window's minimum
     _gap_ns: int = 0  # the silence before the messages without a boot clock accepted since the last with one
@@ -139,6 +167,7 @@ class AutopilotPresence:
             self.detail = f"first {mtype}"
             return Freshness.SEEN
         silent_ns = rx_ns - self.last_rx_ns
+        self.silence_ns = silent_ns
         # a reboot's first messages may carry no boot clock (HEARTBEAT): the silence before them still counts
         refusal = self._refusal(mtype, boot_ms, seq, rx_ns, max(silent_ns, self._gap_ns))
         if refusal == "rebooted":
@@ -162,6 +191,23 @@ class AutopilotPresence:
             fresh, self.detail = Freshness.BACK, f"back after {silent_ns / 1e9:.3f} s"
         self._accept(mtype, boot_ms, seq, rx_ns)
         return fresh
+
+    @property
+    def state(self) -> AutopilotState:
+        if self.last_rx_ns is None:
+            return AutopilotState.WAITING
+        return AutopilotState.LOST if self.lost else AutopilotState.UP
+
+    def expire(self, now_ns: int) -> int | None:
+        """The silence [ns] when the autopilot, heard before, has now been silent for longer than the timeout
+        and was not lost yet (said once per outage); None otherwise."""
+        if self.lost or self.last_rx_ns is None:
+            return None
+        silent_ns = now_ns - self.last_rx_ns
+        if silent_ns <= self.timeout_ns:
+            return None
+        self.lost = True
+        return silent_ns
 
     def _refusal(self, mtype: str, boot_ms: int | None, seq: int, rx_ns: int, silent_ns: int) -> str:
         """Why a message is not of the autopilot's stream ("" when it is; "rebooted" when it starts a new one)."""
@@ -201,6 +247,7 @@ class AutopilotPresence:
         return 1 <= step <= SEQ_AHEAD_MAX or (reordered and step >= 256 - SEQ_REORDER_MAX)
 
     def _accept(self, mtype: str, boot_ms: int | None, seq: int, rx_ns: int) -> None:
+        self.lost = False
         if boot_ms is None and self.last_rx_ns is not None:
             self._gap_ns = max(self._gap_ns, rx_ns - self.last_rx_ns)
         elif boot_ms is not None:

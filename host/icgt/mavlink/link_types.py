@@ -18,7 +18,6 @@ __all__ = [
     "LinkConfig",
     "LinkError",
     "LinkEventKind",
-    "LinkState",
     "LinkStats",
     "MavlinkEvent",
     "MavlinkMessage",
@@ -35,19 +34,10 @@ class LinkError(IcgtError):
     """The MAVLink connection cannot be opened (bad URL, missing device, refused connection)."""
 
 
-class LinkState(enum.Enum):
-    """What the link knows about the autopilot."""
-
-    WAITING = "waiting"  # never heard from it
-    UP = "up"  # messages arriving
-    LOST = "lost"  # nothing for link_timeout_s
-
-
 class LinkEventKind(enum.Enum):
-    AUTOPILOT_SEEN = "autopilot_seen"
-    AUTOPILOT_LOST = "autopilot_lost"
-    AUTOPILOT_BACK = "autopilot_back"
-    AUTOPILOT_REBOOTED = "autopilot_rebooted"
+    """What the link itself reports: its transport, its rate requests, its socket. (The autopilot's presence is
+    the core's: `icgt.mavlink.autopilot_rules.PresenceChange`.)"""
+
     TRANSPORT_ERROR = "transport_error"
     TRANSPORT_REOPENED = "transport_reopened"
     RATE_REQUEST = "rate_request"
@@ -56,14 +46,12 @@ class LinkEventKind(enum.Enum):
 
 @dataclasses.dataclass(frozen=True, slots=True)
 class MavlinkEvent:
-    """A change worth a line in the log. ``outage_ns`` is set on AUTOPILOT_BACK (time since the last
-    message before the loss) and AUTOPILOT_LOST (time since the last message, i.e. about the timeout)."""
+    """A change worth a line in the log."""
 
     kind: LinkEventKind
     host_ns: int
     system: int
     component: int
-    outage_ns: int | None = None
     detail: str = ""
     count: int = 0  # KERNEL_DROPS: the datagrams dropped since the last such event
 
@@ -127,17 +115,15 @@ class LinkConfig:
 
     ``system_id`` is the vehicle's system id: the camera component shares it (ground stations only list
     cameras of the vehicle's own system) and it is the autopilot's unless ``autopilot_system`` says
-    otherwise. ``autopilot_component`` None means: learn it from the first HEARTBEAT of that system whose
-    autopilot field is not MAV_AUTOPILOT_INVALID.
+    otherwise. Which component of it is the autopilot is the core's to say (`MavlinkLink.autopilot_hint`,
+    from the synchroniser's `AutopilotPresence`; ``SyncConfig.autopilot_component``).
     """
 
     url: str
     system_id: int = 1
     component_id: int = MAV_COMP_ID_CAMERA
     autopilot_system: int | None = None
-    autopilot_component: int | None = None
     baud: int = 115200  # serial only, when the URL does not say ("/dev/ttyAMA0,921600" does)
-    link_timeout_s: float = 3.0
     reopen_delay_s: float = 1.0
     request_rates: bool = True
     stream_rates: tuple[StreamRate, ...] = DEFAULT_STREAM_RATES
@@ -163,7 +149,7 @@ class LinkConfig:
     # UDP with kernel receive timestamps only: after draining the socket the reader sleeps this long [s],
     # so that one wake-up takes many datagrams (their stamps are the kernel's, not the read's). 0: no pause.
     read_batch_s: float = 0.0
-    # The service thread (liveness, TIMESYNC and stream-rate requests) runs this often [s].
+    # The service thread (TIMESYNC and stream-rate requests, `icgt.mavlink.link_scheduler`) runs this often [s].
     service_period_s: float = 0.01
     # UDP with kernel receive timestamps only: no reader or service thread, the owner calls `MavlinkLink.pump()`
     # every few tens of ms from its own thread (see icgt.mavlink.link). Other transports ignore it.
@@ -205,15 +191,12 @@ class LinkStats:
     same_id_frames: int
     timesync_sent: int
     undecoded_frames: int
-    outages: int
     transport_errors: int
     # UDP datagrams the kernel dropped because the socket's receive buffer was full (SO_MEMINFO / SO_RXQ_OVFL,
     # Linux), and that buffer: what was asked (udp_receive_buffer_bytes) and what the kernel granted [bytes]
     kernel_drops: int = 0
     udp_receive_buffer_bytes: int = 0
     udp_receive_buffer_asked_bytes: int = 0
-    # frames with the autopilot's ids that are not of its stream (another sender: AutopilotPresence)
-    second_sender_frames: int = 0
     # with a signing key only: frames received with a valid signature, an invalid one, none
     signed_ok: int = 0
     signed_bad: int = 0
@@ -234,12 +217,3 @@ class Subscription:
         self.callback = callback
         self.types = types
         self.undecoded = undecoded  # takes other systems' undecoded frames in batches instead of `callback`
-
-
-@dataclasses.dataclass(slots=True)
-class _RateJob:
-    rate: StreamRate
-    attempts: int = 0
-    deadline_ns: int = 0
-    ack: int | None = None  # MAV_RESULT from the reader thread
-    acked: bool = False

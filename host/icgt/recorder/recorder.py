@@ -74,7 +74,7 @@ from icgt.recorder.step_schedule import StepSchedule
 from icgt.recorder.tuning import InterpreterTuning
 from icgt.recording import McapRecorder, RecordingError, layout
 from icgt.recording.views import FoxgloveViews
-from icgt.sync import SyncConfig, Synchroniser
+from icgt.sync import SyncConfig, SyncEvent, Synchroniser
 
 log = logging.getLogger("icgt.recorder")
 
@@ -115,7 +115,7 @@ class RecorderStatus:
 # Inputs from the reader threads to the worker, tagged by kind.
 _DEVICE, _EXCHANGE, _DEVICE_EVENT, _MAVLINK, _MAVLINK_EVENT, _TIMESYNC_SENT = range(6)
 _DRAIN_MAX = 5000  # inputs handled before the worker polls again (bounds frame latency under a flood)
-_MAVLINK_SERVICE_PERIOD_S = 0.05  # a serial/TCP MAVLink link's liveness / TIMESYNC / rate-request steps [s]
+_MAVLINK_SERVICE_PERIOD_S = 0.05  # a serial/TCP MAVLink link's TIMESYNC / rate-request steps [s]
 _OTHER_SYSTEMS_BATCH = 500  # other systems' MAVLink frames per /mavlink/other_systems record, at most
 # The device reader sleeps this long between reads [s] when no stamp depends on it (DeviceLink batch_s: not
 # while a reply is awaited) until the worker pumps the link, and again after: one wake-up per pause, not per USB
@@ -363,6 +363,7 @@ class Recorder:
         with self._step():
             self._drain(limit=None)
             self._emit(self.sync.poll(time.monotonic_ns(), flush=True))
+            self._take_sync_events()
         self._stop_control()
         if self.camera is not None:
             self.camera.stop()
@@ -373,6 +374,7 @@ class Recorder:
         with self._step():
             self._drain(limit=None)  # what arrived while the links closed is still logged
             self._emit(self.sync.poll(time.monotonic_ns(), flush=True))
+            self._take_sync_events()
             self._write_counters(time.monotonic_ns())
         self._record_link_summary()
         self._close_log()
@@ -631,7 +633,23 @@ class Recorder:
 
     def _on_mavlink_event(self, event: MavlinkEvent) -> None:
         # MavlinkLink logs the event itself (icgt.mavlink.link, also on /icgt/log); here it only goes on the topic.
-        self._write_event("mavlink", event.kind.value, event.detail, event.host_ns, event.count, event.outage_ns or 0)
+        self._write_event("mavlink", event.kind.value, event.detail, event.host_ns, event.count)
+
+    def _take_sync_events(self) -> None:
+        for event in self.sync.take_events():
+            self._on_sync_event(event)
+
+    def _on_sync_event(self, event: SyncEvent) -> None:
+        """A synchroniser event on /icgt/link_events, once. The autopilot's presence (seen / lost / back /
+        rebooted: the one state machine, the synchroniser's) goes under link "mavlink", and to the MAVLink link as
+        a hint (its stream rates asked again, TIMESYNC fast again); the rest under "sync"."""
+        if event.presence is None:
+            self._write_event("sync", event.kind, event.detail, event.host_ns, outage_ns=event.outage_ns)
+            return
+        self._write_event("mavlink", event.kind, event.detail, event.host_ns, outage_ns=event.outage_ns)
+        if self.mavlink is not None:
+            ap = self.sync.autopilot
+            self.mavlink.autopilot_hint(event.presence, ap.system, ap.component, event.host_ns)
 
     # ------------------------------------------------------------------ frames
     def _emit(self, records: list[FrameRecord]) -> None:
@@ -709,8 +727,7 @@ class Recorder:
 
     def _work_once(self, now: int) -> None:
         self._emit(self.sync.poll(now))
-        for event in self.sync.take_events():
-            self._write_event("sync", event.kind, event.detail, event.host_ns)
+        self._take_sync_events()
         if now >= self._next_clock_log_ns:
             self._next_clock_log_ns = now + 1_000_000_000
             sync = self.sync
@@ -788,7 +805,8 @@ class Recorder:
             exposures=self.exposures,
             device_connected=self.device is not None and self.device.connected and not self._waiting_for_device,
             waiting_for_device=self._waiting_for_device,
-            autopilot=self.mavlink.state.value if self.mavlink is not None else "none",
+            # the synchroniser's account of the autopilot (waiting / up / lost), not a second one of the link's
+            autopilot=self.sync.autopilot.state.value if self.mavlink is not None else "none",
             device_clock_settled=bool(snap.get("device_clock_settled", False)),
             device_clock_uncertainty_us=snap.get("device_clock_uncertainty_us"),
             sequence_gaps=int(stats.get("seq_gaps") or 0),

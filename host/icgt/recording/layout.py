@@ -23,6 +23,8 @@ be recomputed later; derived ones (frames, clock estimates) say how they were ma
   against these);
 * ``/clock/device``, ``/clock/autopilot``, ``/clock/utc`` (JSON): the clock estimates once a second;
 * ``/icgt/link_events`` (JSON): link state changes, sequence gaps, rejected frames, synchroniser notices;
+  the autopilot's presence (autopilot_seen / _lost / _back / _rebooted, under link "mavlink") once each,
+  from the synchroniser's one account of it (`icgt.mavlink.autopilot_rules.AutopilotPresence`);
 * ``/icgt/log`` (Foxglove Log): the recorder's own log;
 * ``/icgt/counters`` (JSON): link, camera and synchroniser counters once a second;
 * ``/camera/images`` (JSON): every CAMERA_IMAGE_CAPTURED published: its MAVLink image index, the frame

@@ -39,7 +39,7 @@ from icgt.device.history import NOMINAL_RATES, DeviceRates, telemetry_retention_
 from icgt.geotag.clock_views import AutopilotClockView, UtcView, add_pps_edge
 from icgt.geotag.geotagger import Geotagger
 from icgt.geotag.record import FrameRecord
-from icgt.mavlink.autopilot_rules import BOOT_CLOCK_TYPES, AutopilotPresence, Freshness
+from icgt.mavlink.autopilot_rules import BOOT_CLOCK_TYPES, AutopilotPresence, Freshness, PresenceChange
 from icgt.mavlink.link_types import MavlinkMessage
 from icgt.mavlink.telemetry import TelemetryStore
 from icgt.protocol.messages import DeviceState, Exposure, Hello, Imu, Message, Pps, Range, Status
@@ -55,11 +55,17 @@ UNANSWERED_TIMESYNC_WARNING = 10  # requests without any answer before the log s
 
 @dataclass(frozen=True, slots=True)
 class SyncEvent:
-    """Something the synchroniser noticed that belongs in the log (kind, host time [ns], detail)."""
+    """Something the synchroniser noticed that belongs in the log (kind, host time [ns], detail).
+
+    ``presence``: a change of the autopilot's presence (its kind is ``presence.value``), which the recorder also
+    hands to the MAVLink link as a hint. ``outage_ns``: on autopilot_lost the silence so far, on autopilot_back
+    (and autopilot_rebooted after a loss) the whole silence [ns]; 0 otherwise."""
 
     kind: str
     host_ns: int
     detail: str
+    outage_ns: int = 0
+    presence: PresenceChange | None = None
 
 
 class Synchroniser:
@@ -108,6 +114,7 @@ class Synchroniser:
             "mavlink_messages": 0,
             "device_reboots": 0,
             "autopilot_reboots": 0,
+            "autopilot_outages": 0,  # back after a silence longer than autopilot_timeout_s
             "frames": 0,
             "late_pps_skipped": 0,
             "autopilot_second_sender_messages": 0,
@@ -201,16 +208,13 @@ class Synchroniser:
         if self.config.require_signed_autopilot and not msg.get_signed():
             self._unsigned(mtype, rx_ns)
             return None
+        was_lost = self.autopilot.lost
         fresh = self.autopilot.observe(msg, mtype, rx_ns)
         if fresh is Freshness.SECOND_SENDER:
             self._second_sender(rx_ns)
             return None
         if fresh is not None and fresh is not Freshness.SAME:
-            self.timesync.forget()
-            if fresh is Freshness.REBOOTED:
-                self.counts["autopilot_reboots"] += 1
-                self.autopilot_one_way.reset()
-            self._event(fresh.value, rx_ns, self.autopilot.detail)
+            self._appeared(PresenceChange(fresh.value), rx_ns, was_lost)
         if fresh is not None and mtype in BOOT_CLOCK_TYPES:
             boot_ms = getattr(msg, "time_boot_ms", None)
             if isinstance(boot_ms, int):
@@ -229,6 +233,33 @@ class Synchroniser:
         if mtype == "SYSTEM_TIME" and fresh is not None:  # the autopilot's own, not a companion's
             self.utc.add_system_time(int(msg.time_unix_usec), int(msg.time_boot_ms))
         return None
+
+    def _appeared(self, change: PresenceChange, rx_ns: int, was_lost: bool) -> None:
+        """The autopilot seen first, back after its timeout, or rebooted: TIMESYNC requests sent before are not
+        answered on the same clock, and a reboot restarts its boot clock."""
+        self.timesync.forget()
+        outage_ns = self.autopilot.silence_ns if change is PresenceChange.BACK or was_lost else 0
+        if change is PresenceChange.BACK:
+            self.counts["autopilot_outages"] += 1
+        elif change is PresenceChange.REBOOTED:
+            self.counts["autopilot_reboots"] += 1
+            self.autopilot_one_way.reset()
+        level = logging.WARNING if change is PresenceChange.REBOOTED else logging.INFO
+        self._event(change.value, rx_ns, self.autopilot.detail, outage_ns=outage_ns, presence=change, level=level)
+
+    def _check_presence(self, now_ns: int) -> None:
+        """The autopilot silent for longer than ``autopilot_timeout_s``: said once (its next message is back)."""
+        silent_ns = self.autopilot.expire(now_ns)
+        if silent_ns is not None:
+            detail = f"no message for {silent_ns / 1e9:.3f} s"
+            self._event(
+                PresenceChange.LOST.value,
+                now_ns,
+                detail,
+                outage_ns=silent_ns,
+                presence=PresenceChange.LOST,
+                level=logging.WARNING,
+            )
 
     def _unsigned(self, mtype: str, rx_ns: int) -> None:
         """With signing configured, a message of the autopilot's system without a valid signature: counted, said
@@ -258,6 +289,7 @@ class Synchroniser:
     def poll(self, now_ns: int, *, flush: bool = False) -> list[FrameRecord]:
         """The frames ready at host time ``now_ns`` (all pending ones with ``flush``), in exposure order."""
         self.timesync.expire(now_ns)
+        self._check_presence(now_ns)
         if (
             not self._timesync_warned
             and self.timesync.answered == 0
@@ -325,6 +357,15 @@ class Synchroniser:
             **{f"telemetry_{k}": v for k, v in self.telemetry.counts().items()},
         }
 
-    def _event(self, kind: str, host_ns: int, detail: str) -> None:
-        log.info("%s: %s", kind, detail)
-        self.events.append(SyncEvent(kind, host_ns, detail))
+    def _event(
+        self,
+        kind: str,
+        host_ns: int,
+        detail: str,
+        *,
+        outage_ns: int = 0,
+        presence: PresenceChange | None = None,
+        level: int = logging.INFO,
+    ) -> None:
+        log.log(level, "%s: %s", kind, detail)
+        self.events.append(SyncEvent(kind, host_ns, detail, outage_ns, presence))

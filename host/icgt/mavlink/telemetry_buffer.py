@@ -22,6 +22,13 @@ class _Stamped(Protocol):
 S = TypeVar("S", bound=_Stamped)
 
 
+def _check_bounds(capacity: int, retain_us: int | None) -> None:
+    if capacity < 2:
+        raise ValueError("capacity must be at least 2")
+    if retain_us is not None and retain_us <= 0:
+        raise ValueError("retain_us must be positive")
+
+
 class TelemetryBuffer(Generic[S]):
     """A bounded buffer of one stream's samples kept sorted by ``boot_us`` (one thread: the synchroniser's).
 
@@ -42,10 +49,7 @@ class TelemetryBuffer(Generic[S]):
         retain_us: int | None = None,
         codec: SampleCodec[S] | None = None,
     ) -> None:
-        if capacity < 2:
-            raise ValueError("capacity must be at least 2")
-        if retain_us is not None and retain_us <= 0:
-            raise ValueError("retain_us must be positive")
+        _check_bounds(capacity, retain_us)
         self.capacity = capacity
         self.retain_us = retain_us
         self.expired = 0
@@ -135,10 +139,7 @@ class TelemetryBuffer(Generic[S]):
 
     def set_bounds(self, capacity: int, retain_us: int | None) -> None:
         """Change both bounds (a longer retention keeps what is held; a shorter one trims at once)."""
-        if capacity < 2:
-            raise ValueError("capacity must be at least 2")
-        if retain_us is not None and retain_us <= 0:
-            raise ValueError("retain_us must be positive")
+        _check_bounds(capacity, retain_us)
         self.capacity = capacity
         self.retain_us = retain_us
         self._trim()

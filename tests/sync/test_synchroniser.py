@@ -427,6 +427,8 @@ def test_settings_stored_by_an_older_recorder_are_read_with_their_units_converte
 def test_a_stored_value_out_of_its_range_is_an_error_not_a_default():
     with pytest.raises(ValueError, match="autopilot_timeout_s"):
         SyncConfig.from_json({"autopilot_timeout_s": -1.0})
+    with pytest.raises(ValueError, match="max_wait_s"):  # an old name with a value that is not a number
+        SyncConfig.from_json({"geotag": {"max_wait_ms": "500"}})
 
 
 # --------------------------------------------------------------------------- Synchroniser: frames resent late

@@ -87,15 +87,18 @@ RETIRED: frozenset[str] = frozenset({"stale_pose_ms"})
 def migrate(data: Mapping[str, Any], renamed: Mapping[str, tuple[str, float]] = RENAMED) -> dict[str, Any]:
     """`data` with old names converted to the new ones (value times the factor) and retired settings left out.
 
-    A value stored under both names (never written by a recorder) keeps the new one."""
+    A value stored under both names (never written by a recorder) keeps the new one. A value that is not a
+    number is passed on unconverted under the new name, so that reading it fails naming the setting rather
+    than the setting falling back to its default."""
     out: dict[str, Any] = {}
     for key, value in data.items():
         if key in RETIRED:
             continue
         if key in renamed:
             new, factor = renamed[key]
-            if new not in data and isinstance(value, int | float) and not isinstance(value, bool):
-                out[new] = value * factor
+            if new not in data:
+                numeric = isinstance(value, int | float) and not isinstance(value, bool)
+                out[new] = value * factor if numeric else value
             continue
         out[key] = value
     return out

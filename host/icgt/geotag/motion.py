@@ -29,6 +29,7 @@ __all__ = [
     "learn_motion_scale",
     "motion_interpolated",
     "scaled_motion",
+    "turned_with_velocity",
 ]
 
 
@@ -77,11 +78,33 @@ def motion_interpolated(
         a0e = a0 if a0 is not None else 2.0 * mean - (a1 if a1 is not None else mean)
         a1e = a1 if a1 is not None else 2.0 * mean - a0e
         correction = quintic_correction(p0, v0, a0e, p1, v1, a1e, span_s, f)
-        change = a1e - a0e
+        change = a1e - turned_with_velocity(a0e, v0, v1)
         # what the known ends do not explain (one end known: as if the other were like it)
         known = [a for a in (a0, a1) if a is not None]
         unexplained = mean - sum(known) / len(known)
     return interpolation_parts(span_s, f, correction, v1 - v0, allowance, unexplained, change)
+
+
+# Below this horizontal speed [m/s] the heading is noise, and nothing is turned (a hover's drift).
+_MIN_TURN_SPEED_M_S = 2.0
+
+
+def turned_with_velocity(a: np.ndarray, v0: np.ndarray, v1: np.ndarray) -> np.ndarray:
+    """The acceleration ``a`` (at the start of a span) turned by the angle the horizontal velocity turns through
+    from v0 to v1; the vertical part as it is.
+
+    In a steady coordinated turn the acceleration (centripetal, towards the turn's centre) turns with the
+    velocity, so at the far end of the span it is ``a`` turned, not ``a``: comparing the end accelerations as
+    vectors would read a steady turn as a bank rolled in somewhere inside the span (|a1 - a0| = 2 |a|
+    sin(dpsi / 2), 0.68 |a| for 40 deg). A bank rolled in or out inside the span still differs from this by
+    the whole acceleration it changes."""
+    s0, s1 = float(np.hypot(v0[0], v0[1])), float(np.hypot(v1[0], v1[1]))
+    if min(s0, s1) < _MIN_TURN_SPEED_M_S:
+        return a
+    dpsi = float(np.arctan2(v0[0] * v1[1] - v0[1] * v1[0], v0[0] * v1[0] + v0[1] * v1[1]))
+    c, s = np.cos(dpsi), np.sin(dpsi)
+    out: np.ndarray = np.array([c * a[0] - s * a[1], s * a[0] + c * a[1], a[2]], dtype=float)
+    return out
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ def _run(s: LinkScheduler, start_ns: int, end_ns: int, step_ns: int = 10 * MS, *
         if due.rate is not None:
             sent.append((now, due.rate))
             if answer:
-                s.on_autopilot_message(mavlink2.MAVLINK_MSG_ID_COMMAND_ACK, _ack(), now + 5 * MS)
+                s.on_command_ack(_ack(), now + 5 * MS)
     return sent
 
 
@@ -80,7 +80,7 @@ def test_a_loss_drops_the_pending_requests() -> None:
     s.autopilot_appeared(1, 1, 0)
     assert len(_run(s, 0, 20 * MS, answer=False)) == 1  # ATTITUDE sent, not answered yet
     s.autopilot_lost()
-    s.on_autopilot_message(mavlink2.MAVLINK_MSG_ID_COMMAND_ACK, _ack(), 30 * MS)  # nothing in flight: ignored
+    s.on_command_ack(_ack(), 30 * MS)  # nothing in flight: ignored
     assert s.rate_results() == []
 
 
@@ -98,7 +98,7 @@ def test_an_ack_for_another_component_is_not_ours() -> None:
     s.autopilot_appeared(1, 1, 0)
     assert len(_run(s, 0, 10 * MS, answer=False)) == 1
     other = _MAV.command_ack_encode(mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, 0, 0, 0, 255, 190)
-    s.on_autopilot_message(mavlink2.MAVLINK_MSG_ID_COMMAND_ACK, other, 12 * MS)
+    s.on_command_ack(other, 12 * MS)
     s.due(20 * MS)
     assert s.rate_results() == []
 
@@ -134,7 +134,7 @@ def test_an_accepted_rate_that_comes_is_left_alone() -> None:
         due = s.due(now)
         if due.rate is not None:
             sent.append(due.rate)
-            s.on_autopilot_message(mavlink2.MAVLINK_MSG_ID_COMMAND_ACK, _ack(), now + MS)
+            s.on_command_ack(_ack(), now + MS)
         if now % (100 * MS) == 0:
-            s.on_autopilot_message(GPS.message_id, object(), now)  # 10 Hz
+            s.counted(GPS.message_id)  # 10 Hz
     assert len(sent) == 1

@@ -10,7 +10,7 @@ import threading
 import time
 
 import pytest
-from mavlink_peers import AutopilotPeer, free_udp_port, wait_until
+from mavlink_peers import AutopilotPeer, Peer, free_udp_port, wait_until
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from icgt.mavlink.autopilot_rules import REBOOT_SILENCE_NS, AutopilotState
@@ -71,6 +71,8 @@ class Recorder:
             reply = self.sync.on_mavlink(rec.msg, rec.rx_ns)
             if reply is not None:
                 self.timesync.append(reply)
+            if rec.type == "COMMAND_ACK" and self.sync.last_message_believed and self.link is not None:
+                self.link.autopilot_answered(rec.msg, rec.rx_ns)
             self._hint()
 
     def unanswered(self) -> int:
@@ -166,6 +168,45 @@ def test_rate_requests_are_retried_until_acked_and_bounded(recorder):
         details = [e.detail for e in recorder.of(LinkEventKind.RATE_REQUEST)]
         assert any("ATTITUDE at 50 Hz: no COMMAND_ACK after 3 attempts" in d for d in details)
     finally:
+        ap.close()
+        link.stop()
+
+
+def test_a_second_sender_with_the_autopilots_ids_cannot_answer_a_rate_request(recorder):
+    # Issue 26: the link took any COMMAND_ACK with the autopilot's ids from its reading thread, so a second
+    # sender (a router's echo, another flight stack, an attacker) could "accept" a rate the autopilot never
+    # took. Only the ACKs the synchroniser believes (the autopilot's stream) answer now.
+    link, port = make_link(recorder, rate_max_attempts=3, rate_ack_timeout_s=0.15)
+    ap = AutopilotPeer(port)
+    spoofer = Peer(1, 1, port)  # the autopilot's ids, its own sequence numbers
+    att = mavlink2.MAVLINK_MSG_ID_ATTITUDE
+    ap.never_ack.add(att)
+    stop = threading.Event()
+
+    def spoof() -> None:
+        while not stop.wait(0.01):
+            spoofer.mav.seq = (ap.mav.seq + 128) % 256  # never the stream's next numbers
+            spoofer.send(
+                spoofer.mav.command_ack_encode(
+                    mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink2.MAV_RESULT_ACCEPTED, 0, 0, 0, 0
+                )
+            )
+
+    thread = threading.Thread(target=spoof, daemon=True)
+    link.start()
+    try:
+        ap.stream(hz=50)
+        assert wait_until(lambda: recorder.sync.autopilot.state is AutopilotState.UP, timeout=3.0)
+        thread.start()
+        assert wait_until(lambda: len(link.rate_results()) == len(RATE_IDS), timeout=5.0)
+        results = {r.message_id: r for r in link.rate_results()}
+        assert results[att].result is None and results[att].attempts == 3, results[att]
+        assert all(r.accepted for m, r in results.items() if m != att)  # the autopilot's own ACKs still count
+        assert recorder.sync.counters()["autopilot_second_sender_messages"] > 0
+    finally:
+        stop.set()
+        thread.join(timeout=1.0)
+        spoofer.close()
         ap.close()
         link.stop()
 

@@ -10,20 +10,23 @@ each MAVLink index to its frame (``frame_seq``) and the device's trigger number.
 The poor-pose policy (which frames are published without a position) is the recorder's
 (`icgt.recorder.camera_link`): this module carries what it decides.
 
-History: every image of the recording is kept (about 200 bytes each: an hour at 20 fps is ~15 MB) and can
-be re-requested with MAV_CMD_REQUEST_MESSAGE(CAMERA_IMAGE_CAPTURED): param2 the first index (-1: all
-images), param3 0 for that image only, -1 for it and every later one, or the last index of a range.
+History: every image of the recording is kept, packed, in a temporary file (`icgt.spill`; a few kB of
+memory whatever the length) and can be re-requested with MAV_CMD_REQUEST_MESSAGE(CAMERA_IMAGE_CAPTURED):
+param2 the first index (-1: all images), param3 0 for that image only, -1 for it and every later one, or
+the last index of a range.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import struct
 import threading
 from typing import Any
 
 from icgt.errors import IcgtError
 from icgt.mavlink.sample_codec import SampleCodec
+from icgt.spill import Spill
 
 __all__ = [
     "CameraError",
@@ -133,29 +136,40 @@ def image_range(first: float, last: float, count: int) -> tuple[range, str]:
 class ImageHistory:
     """Every image published in this recording, by index. Thread-safe."""
 
-    def __init__(self) -> None:
-        # Held packed (`SampleCodec`, IMAGE_BYTES each instead of about 490 as objects): the history grows with
-        # the recording (a ground station may re-request any image), 300 images a minute at 5 fps. An image
-        # whose file_url would overflow the codec's string table is kept as the object.
-        self._images: list[bytes | CapturedImage] = []
+    def __init__(self, spill_dir: str | None = None) -> None:
+        # Packed (`SampleCodec`: one fixed-size struct per image) and kept on disk in a `Spill`, image N at
+        # N * size: the history grows with the recording (a ground station may re-request any image, 300 a
+        # minute at 5 fps), and in memory, even packed, it made the resident set grow (issue 30's soak). An
+        # image whose file_url would overflow the codec's string table is kept in memory as the object.
         self._codec = SampleCodec(CapturedImage)
+        self._spill = Spill("the camera's image history", spill_dir)
+        self._unpacked: dict[int, CapturedImage] = {}
+        self._count = 0
         self._lock = threading.Lock()
 
     def append(self, image: CapturedImage) -> CapturedImage:
         """Give ``image`` the next index, keep it and return it with its index."""
         with self._lock:
-            indexed = dataclasses.replace(image, image_index=len(self._images))
+            indexed = dataclasses.replace(image, image_index=self._count)
             try:
-                self._images.append(self._codec.encode(indexed))
-            except ValueError:
-                self._images.append(indexed)
+                packed = self._codec.encode(indexed)
+            except (ValueError, struct.error):  # a string table full, or an int beyond its field
+                packed = bytes(self._codec.size)  # a placeholder slot keeps image N at N * size
+                self._unpacked[indexed.image_index] = indexed
+            self._spill.append(packed)
+            self._count += 1
             return indexed
 
     def __len__(self) -> int:
         with self._lock:
-            return len(self._images)
+            return self._count
 
     def get(self, index: int) -> CapturedImage | None:
         with self._lock:
-            item = self._images[index] if 0 <= index < len(self._images) else None
-        return self._codec.decode(item) if isinstance(item, bytes) else item
+            if not 0 <= index < self._count:
+                return None
+            unpacked = self._unpacked.get(index)
+            if unpacked is not None:
+                return unpacked
+            size = self._codec.size
+            return self._codec.decode(self._spill.read(index * size, size))

@@ -1,8 +1,9 @@
 """What the MAVLink link sends on its own, and when: TIMESYNC requests and stream-rate requests.
 
-`LinkScheduler` is driven by time (`due(now_ns)`), by the autopilot's answers (`on_autopilot_message`:
-its COMMAND_ACKs and how many of each message it sends) and by hints from the core, which owns the one
-autopilot state machine (`icgt.mavlink.autopilot_rules.AutopilotPresence`, in the synchroniser):
+`LinkScheduler` is driven by time (`due(now_ns)`), by the autopilot's answers (`on_command_ack`, the
+COMMAND_ACKs the core believed, and `counted`: how many of each message it sends) and by hints from the
+core, which owns the one autopilot state machine (`icgt.mavlink.autopilot_rules.AutopilotPresence`, in the
+synchroniser):
 
 * `autopilot_appeared` (seen, back after an outage, rebooted): its streams may be at their defaults and its
   clock may have restarted, so every configured stream rate is asked for again (MAV_CMD_SET_MESSAGE_INTERVAL,
@@ -99,11 +100,16 @@ class LinkScheduler:
             self._rerequests.clear()
 
     # ------------------------------------------------------------------ what the autopilot sends
-    def on_autopilot_message(self, msg_id: int, msg: Any, rx_ns: int) -> None:
-        """A message from the autopilot's (system, component): counted per id (rate checks); a COMMAND_ACK of
-        SET_MESSAGE_INTERVAL for us answers the rate command in flight."""
+    def counted(self, msg_id: int) -> None:
+        """A message with the autopilot's (system, component), counted per id for the rate checks (on the
+        reading thread: a second sender using those ids is counted too, which can only hide a slow stream)."""
         self._rx_count[msg_id] = self._rx_count.get(msg_id, 0) + 1
-        if msg_id != mavlink2.MAVLINK_MSG_ID_COMMAND_ACK or int(msg.command) != _SET_MESSAGE_INTERVAL or not self._jobs:
+
+    def on_command_ack(self, msg: Any, rx_ns: int) -> None:
+        """A COMMAND_ACK the core believed to be the autopilot's own (its ids and its stream, signed when signing
+        is configured: `Synchroniser.last_message_believed`): one of SET_MESSAGE_INTERVAL for us answers the
+        rate command in flight. An ACK from a second sender with the autopilot's ids never gets here."""
+        if int(msg.command) != _SET_MESSAGE_INTERVAL or not self._jobs:
             return
         target = (int(getattr(msg, "target_system", 0)), int(getattr(msg, "target_component", 0)))
         if target not in ((0, 0), (self.config.system_id, self.config.component_id)):

@@ -229,7 +229,13 @@ class McapRecorder:
         except OSError as exc:
             raise RecordingError(f"cannot create {self.path}: {exc.strerror or exc}") from None
         try:
-            return McapFileWriter(stream, profile=profile, compression=compression, max_chunk_bytes=max_chunk_bytes)
+            return McapFileWriter(
+                stream,
+                profile=profile,
+                compression=compression,
+                max_chunk_bytes=max_chunk_bytes,
+                spill_dir=self.path.parent,  # the chunk index waits next to the log, on the disk meant for it
+            )
         except (OSError, RecordingError) as exc:
             stream.close()
             if opener is None:  # we created it, and it holds nothing worth keeping

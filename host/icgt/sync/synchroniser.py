@@ -108,6 +108,9 @@ class Synchroniser:
         self.hello: Hello | None = None
         self.last_status: Status | None = None
         self.events: list[SyncEvent] = []  # drained by the caller (`take_events`)
+        # The message `on_mavlink` took last was the followed autopilot's own (its ids and its stream, signed when
+        # signing is configured): only such a COMMAND_ACK may answer the link's commands (the recorder's check).
+        self.last_message_believed = False
         self.counts: dict[str, int] = {
             "exposures": 0,
             "exchanges": 0,
@@ -197,8 +200,10 @@ class Synchroniser:
         self.telemetry.count_other_sources(type_counts)
 
     def on_mavlink(self, msg: Any, rx_ns: int) -> TimesyncReply | None:
-        """Any MAVLink message; returns the TIMESYNC round trip when it was a reply to us."""
+        """Any MAVLink message; returns the TIMESYNC round trip when it was a reply to us. Afterwards
+        `last_message_believed` says whether it was the followed autopilot's own."""
         self.counts["mavlink_messages"] += 1
+        self.last_message_believed = False
         if msg.get_srcSystem() != self.autopilot.system:
             # Another system (a ground station, another vehicle, most of a flood): nothing of it reaches the
             # clocks or the poses; only the telemetry store counts it, as ingest() would.
@@ -213,6 +218,7 @@ class Synchroniser:
         if fresh is Freshness.SECOND_SENDER:
             self._second_sender(rx_ns)
             return None
+        self.last_message_believed = fresh is not None
         if fresh is not None and fresh is not Freshness.SAME:
             self._appeared(PresenceChange(fresh.value), rx_ns, was_lost)
         if fresh is not None and mtype in BOOT_CLOCK_TYPES:

@@ -42,17 +42,6 @@ class Spill:
         except OSError as exc:
             logger.warning("%s is kept in memory: no temporary file could be made (%s)", what, exc)
 
-    @property
-    def size(self) -> int:
-        """Bytes appended so far [bytes]."""
-        return self._size
-
-    @property
-    def bytes_in_memory(self) -> int:
-        """Bytes held in memory because the disk refused them [bytes]."""
-        with self._lock:
-            return sum(len(b) for b in self._held.values())
-
     def append(self, data: bytes) -> int:
         """Keeps ``data`` and returns its offset (for `read`)."""
         with self._lock:

@@ -136,13 +136,13 @@ def image_range(first: float, last: float, count: int) -> tuple[range, str]:
 class ImageHistory:
     """Every image published in this recording, by index. Thread-safe."""
 
-    def __init__(self, spill_dir: str | None = None) -> None:
+    def __init__(self) -> None:
         # Packed (`SampleCodec`: one fixed-size struct per image) and kept on disk in a `Spill`, image N at
         # N * size: the history grows with the recording (a ground station may re-request any image, 300 a
         # minute at 5 fps), and in memory, even packed, it made the resident set grow (issue 30's soak). An
         # image whose file_url would overflow the codec's string table is kept in memory as the object.
         self._codec = SampleCodec(CapturedImage)
-        self._spill = Spill("the camera's image history", spill_dir)
+        self._spill = Spill("the camera's image history")  # in the temporary directory
         self._unpacked: dict[int, CapturedImage] = {}
         self._count = 0
         self._lock = threading.Lock()

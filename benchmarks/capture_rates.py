@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Benchmark: the recorder at 5, 10 and 20 fps, each figure next to the 5 fps baseline of the same run.
 
-    .venv/bin/python benchmarks/capture_rates.py [--fps 5,10,20] [--capture-s 12] [--out bench-out/capture_rates]
+    .venv/bin/python benchmarks/capture_rates.py [--fps 5,10,20] [--capture-s 12] [--load N] [--out DIR]
 
 Flies the deck_pass scenario (its unplug and link-drop faults removed) once per rate (interval capture,
 started and stopped by the ground station, a camera with the Sony Alpha 9's 20 fps top rate, a 48 +- 2 ms
@@ -12,10 +12,11 @@ shutter lag and a buffer that never fills) through the real links (icgt.demo.fly
 - frame latency: from the true mid-exposure to the frame's CAMERA_IMAGE_CAPTURED at the ground station
   (p50 / p95 / max), against the goal p95 <= 50 ms at every rate; a recorder that could not keep up would
   show a latency growing over the flight, so the last tenth's p95 is printed too;
-- its parts (p50 / p95), from the log's receipt stamps: the device's EXPOSURE record arriving (mid-exposure
-  to its host_rx_ns), the telemetry after mid-exposure arriving (the later of the first GLOBAL_POSITION_INT
-  and ATTITUDE_QUATERNION stamped at or after it), the recorder (from the later of those two to the frame's
-  emission) and the publication (emission to the ground station's receipt).
+- its parts (p50 / p95), from the log's receipt stamps (icgt.sim.latency): the device's EXPOSURE record read
+  (mid-exposure to its host_rx_ns: when the worker read it), the telemetry after mid-exposure arriving (the
+  later of the first GLOBAL_POSITION_INT and ATTITUDE_QUATERNION stamped at or after it, kernel stamps), the
+  recorder's own share (from the later of the exposure's end and that telemetry to the frame's emission) and
+  the publication (emission to the ground station's receipt).
 
 A ground station's image index is the camera component's (0, 1, ...), not the device's trigger index: the
 two are paired through the log's /camera/images records (the first version of this script paired them by
@@ -31,6 +32,7 @@ after mid-exposure arrives up to 20 ms after it.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import math
@@ -42,7 +44,9 @@ import numpy as np
 import icgt
 from icgt.demo import Flight, fly
 from icgt.recording import layout
+from icgt.sim.cpu_load import CpuBurners
 from icgt.sim.evaluate import evaluate, read_frames, read_truth
+from icgt.sim.latency import frame_timings
 from icgt.sim.scenario import Scenario, load_scenario
 
 
@@ -63,47 +67,25 @@ GOAL_P95_MS = 50.0
 """Exposure -> CAMERA_IMAGE_CAPTURED at the ground station, p95 at every rate (issue 33)."""
 
 
-def _first_at_or_after(stamps: np.ndarray, rx: np.ndarray, t: float) -> float:
-    """The receipt [host ns] of the first sample stamped at or after t (stamps sorted), nan if none."""
-    i = int(np.searchsorted(stamps, t, side="left"))
-    return float(rx[i]) if i < stamps.size else math.nan
-
-
 def latency_parts_ms(flight: Flight) -> dict[str, list[float]]:
     """Per published frame: total latency and its parts [ms], all on the host's monotonic clock."""
     rec = icgt.read(flight.mcap)
-    frames = {f.frame_seq: f for f in rec.frames()}
     published = {int(m["image_index"]): int(m["frame_seq"]) for _, m in rec.messages(layout.CAMERA_IMAGES)}
-    exposures = {
-        int(m["feedback_start_t_us"] or m["trigger_t_us"]): int(m["host_rx_ns"])
-        for _, m in rec.messages("/device/exposure")
-    }
+    timings = {t.frame_seq: t for t in frame_timings(flight.mcap)}
     truth_mid = {int(t["start_device_us"]): int(t["mid_host_monotonic_ns"]) for t in read_truth(flight.truth_exposures)}
-    clocks = [m for _, m in rec.messages(layout.CLOCK_AUTOPILOT) if m["valid"]]
-    streams = {}
-    for topic in ("/mavlink/global_position_int", "/mavlink/attitude_quaternion"):
-        rows = sorted((int(m["time_boot_ms"]) * 1000, int(m["host_rx_ns"])) for _, m in rec.messages(topic))
-        streams[topic] = (np.array([r[0] for r in rows], dtype=float), np.array([r[1] for r in rows], dtype=float))
     out: dict[str, list[float]] = {"total": [], "device": [], "telemetry": [], "recorder": [], "publish": []}
     for msg, gcs_rx in zip(flight.gcs.images, flight.gcs.image_rx_ns, strict=True):
-        f = frames.get(published.get(int(msg.image_index), -1))
-        if f is None or f.emitted_host_ns is None or not clocks:
+        t = timings.get(published.get(int(msg.image_index), -1))
+        if t is None or math.isnan(t.emitted_host_ns):
             continue
-        mid = truth_mid.get(int(f.start_device_us))
-        dev_rx = exposures.get(int(f.start_device_us))
-        if mid is None or dev_rx is None:
+        mid = truth_mid.get(t.start_device_us)
+        if mid is None:
             continue
-        c = min(clocks, key=lambda k: abs(int(k["ref_host_ns"]) - mid))  # the autopilot clock map then
-        mid_boot_us = float(c["ref_clock_us"]) + (mid - int(c["ref_host_ns"])) / 1e3 * (
-            1 + float(c["drift_ppm"]) * 1e-6
-        )
-        tel_rx = max(_first_at_or_after(*streams[t], mid_boot_us) for t in streams)
-        ready = max(float(dev_rx), tel_rx)
         out["total"].append((gcs_rx - mid) / 1e6)
-        out["device"].append((dev_rx - mid) / 1e6)
-        out["telemetry"].append((tel_rx - mid) / 1e6)
-        out["recorder"].append((f.emitted_host_ns - ready) / 1e6)
-        out["publish"].append((gcs_rx - f.emitted_host_ns) / 1e6)
+        out["device"].append((t.exposure_rx_ns - mid) / 1e6)
+        out["telemetry"].append((t.telemetry_rx_ns - mid) / 1e6)
+        out["recorder"].append(t.recorder_ms)
+        out["publish"].append((gcs_rx - t.emitted_host_ns) / 1e6)
     return out
 
 
@@ -121,38 +103,43 @@ def p50_95(values: list[float]) -> str:
     return "n/a" if a.size == 0 else f"{np.percentile(a, 50):.1f} / {np.percentile(a, 95):.1f}"
 
 
+def fly_rate(fps: float, capture_s: float, out: Path) -> dict[str, Any]:
+    """One flight at `fps`: its pairing, the recorder's CPU time and the latencies."""
+    sc = scenario_at(fps, capture_s)
+    flight = fly(sc, out / sc.name)
+    frames = read_frames(flight.mcap)
+    result = evaluate(sc, frames, read_truth(flight.truth_exposures))
+    parts = latency_parts_ms(flight)
+    lat = parts["total"]
+    tail = lat[-max(1, len(lat) // 10) :]
+    return {
+        "fps": fps,
+        "frames": result["frames"],
+        "true_exposures": result["true_exposures"],
+        "matched": result["matched"],
+        "cpu_s": flight.recorder_cpu_s,
+        "wall_s": flight.recorder_wall_s,
+        "latency": lat,
+        "parts": parts,
+        "p95_ms": float(np.percentile(lat, 95)) if lat else float("nan"),
+        "tail_p95": float(np.percentile(tail, 95)) if tail else float("nan"),
+    }
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--fps", default="5,10,20", help="capture rates to fly, the first is the baseline")
     parser.add_argument("--capture-s", type=float, default=12.0)
     parser.add_argument("--out", type=Path, default=Path("bench-out/capture_rates"))
+    parser.add_argument("--load", type=int, default=0, help="busy-loop processes beside the flights (cpu_load)")
     args = parser.parse_args()
     rates = [float(x) for x in args.fps.split(",")]
-    rows: list[dict[str, Any]] = []
-    for fps in rates:
-        sc = scenario_at(fps, args.capture_s)
-        flight = fly(sc, args.out / sc.name)
-        frames = read_frames(flight.mcap)
-        result = evaluate(sc, frames, read_truth(flight.truth_exposures))
-        parts = latency_parts_ms(flight)
-        lat = parts["total"]
-        tail = lat[-max(1, len(lat) // 10) :]
-        rows.append(
-            {
-                "fps": fps,
-                "frames": result["frames"],
-                "true_exposures": result["true_exposures"],
-                "matched": result["matched"],
-                "cpu_s": flight.recorder_cpu_s,
-                "wall_s": flight.recorder_wall_s,
-                "latency": lat,
-                "parts": parts,
-                "p95_ms": float(np.percentile(lat, 95)) if lat else float("nan"),
-                "tail_p95": float(np.percentile(tail, 95)) if tail else float("nan"),
-            }
-        )
+    with CpuBurners(args.load) if args.load > 0 else contextlib.nullcontext():
+        rows = [fly_rate(fps, args.capture_s, args.out) for fps in rates]
     base = rows[0]
-    print(f"\n== recorder at {', '.join(f'{r:g}' for r in rates)} fps (deck_pass, {args.capture_s:g} s of capture) ==")
+    load = f", {args.load} busy-loop processes beside it" if args.load else ""
+    fps_list = ", ".join(f"{r:g}" for r in rates)
+    print(f"\n== recorder at {fps_list} fps (deck_pass, {args.capture_s:g} s of capture{load}) ==")
     for r in rows:
         cpu_pct = 100.0 * r["cpu_s"] / r["wall_s"] if r["wall_s"] else float("nan")
         extra = r["cpu_s"] - base["cpu_s"]
@@ -167,7 +154,7 @@ def main() -> int:
         )
         p = r["parts"]
         print(
-            f"           parts p50 / p95 [ms]: device message {p50_95(p['device'])}, telemetry after mid "
+            f"           parts p50 / p95 [ms]: device message read {p50_95(p['device'])}, telemetry after mid "
             f"{p50_95(p['telemetry'])}, recorder {p50_95(p['recorder'])}, publication {p50_95(p['publish'])}"
         )
     (args.out / "capture_rates.json").write_text(

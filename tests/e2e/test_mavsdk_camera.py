@@ -31,12 +31,15 @@ from icgt.geodesy import LocalFrame
 from icgt.mavlink.signing import SigningState, key_from_passphrase
 from icgt.recording import layout
 from icgt.sim.evaluate import read_frames, read_truth
+from icgt.sim.latency import frame_timings
 from icgt.sim.live_recorder import LiveRecorder
 from icgt.sim.scenario import load_scenario
 
 SCENARIO = load_scenario(Path(__file__).with_name("mavsdk_hover.toml"))
 CAMERA = 100
 PASSPHRASE = "bridge 12, pier 3 - inspection crew"
+RECORDER_SHARE_MEDIAN_MS = 10.0
+"""Bound on the median recorder share of a steady interval's frames [ms] (see the test that uses it)."""
 M = mavlink2
 
 
@@ -195,20 +198,23 @@ def test_take_photo_and_interval_give_one_capture_info_per_image(plain: PlainFli
     assert max(exposed) < plain.stopped_ns  # nothing exposed after stop_photo_interval returned
 
 
-def test_frames_of_a_steady_interval_are_emitted_when_due_not_a_worker_period_later(plain: PlainFlight) -> None:
-    """The recorder's worker steps every 100 ms and when the next frame of a steady cadence is due
-    (icgt.recorder.step_schedule): a frame of the interval capture is emitted about 30 ms after its
-    mid-exposure (its telemetry sample has come), not 0-100 ms later on top of that (median ~75 ms with
-    the base period alone, ~33 ms on time). The bound leaves room for a loaded machine."""
+def test_frames_of_a_steady_interval_are_emitted_as_soon_as_their_inputs_are_in(plain: PlainFlight) -> None:
+    """The recorder's worker steps every 100 ms, and from just before a steady cadence's next mid-exposure it
+    also wakes when input arrives on its links (icgt.recorder.step_schedule, worker_wake): a frame of the
+    interval capture is emitted a few ms after its inputs are in (the exposure's end, the telemetry sample
+    after mid-exposure; icgt.sim.latency), not at the next timed step (10-25 ms later before the watch, up to
+    100 ms with the base period alone). Only the recorder's own share is bounded: what the machine's load
+    does to the simulator's telemetry is not the recorder's. The bound leaves room for a loaded machine."""
     assert plain.mcap is not None
-    mids = sorted((f["mid_host_ns"], f["emitted_host_ns"]) for f in read_frames(plain.mcap))
+    timings = sorted(frame_timings(plain.mcap), key=lambda t: t.mid_host_ns)
     steady = [
-        (emitted - mid) / 1e6
-        for (prev, _), (prev2, _), (mid, emitted) in zip(mids, mids[1:], mids[2:], strict=False)
-        if abs((prev2 - prev) - (mid - prev2)) < 50_000_000 and 0.3e9 < mid - prev2 < 0.7e9  # 0.5 s interval
+        t.recorder_ms
+        for prev, prev2, t in zip(timings, timings[1:], timings[2:], strict=False)
+        if abs((prev2.mid_host_ns - prev.mid_host_ns) - (t.mid_host_ns - prev2.mid_host_ns)) < 50_000_000
+        and 0.3e9 < t.mid_host_ns - prev2.mid_host_ns < 0.7e9  # the 0.5 s interval
     ]
     assert len(steady) >= 4, steady
-    assert sorted(steady)[len(steady) // 2] < 55.0, steady
+    assert sorted(steady)[len(steady) // 2] < RECORDER_SHARE_MEDIAN_MS, steady
 
 
 def test_list_photos_after_reconnecting_sees_the_recording_s_indices_and_its_history(plain: PlainFlight) -> None:

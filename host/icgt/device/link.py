@@ -380,6 +380,15 @@ class DeviceLink:
     def pumped(self) -> bool:
         return self._pumped
 
+    @property
+    def readable_fd(self) -> int | None:
+        """The descriptor a pumping owner may wait on for the device's input (select()), None when the link
+        is not pumped or is down. Readable means `pump()` has something to read (or the port hung up)."""
+        port = self._port
+        if not self._pumped or port is None or not self._connected.is_set():
+            return None
+        return _port_fd(port)
+
     def pump(self) -> int:
         """Read and hand on (on_message, on_time_sync, on_event, on this thread) whatever the device sent
         since the last read; returns the bytes read. Does nothing when not pumped, when the link is down or

@@ -172,6 +172,19 @@ class MavlinkLink(LinkReader):
         """True when the owner must call `pump()` (``owner_pumps`` on a UDP link with kernel stamps)."""
         return self._pumped
 
+    @property
+    def readable_fd(self) -> int | None:
+        """The socket an owner that pumps may wait on for datagrams (select()), None when the link is not
+        pumped, is stopped or its transport is closed."""
+        conn = self._conn
+        if not self._pumped or self._stop.is_set() or conn is None:
+            return None
+        try:
+            fd = conn.port.fileno()
+        except (AttributeError, OSError, ValueError):
+            return None
+        return fd if isinstance(fd, int) and fd >= 0 else None
+
     def pump(self) -> int:
         """An owner-pumped link's reader and service step, on the caller's thread: every datagram waiting is
         read (with the kernel's arrival stamp) and handled, subscribers called here; then TIMESYNC and

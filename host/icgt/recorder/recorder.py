@@ -3,8 +3,9 @@
 The recorder is I/O around one `icgt.sync.Synchroniser`: the device link (serial), the MAVLink
 link (autopilot and ground station), the MAVLink camera component, the MCAP log and the local
 control socket. Threads: one worker reads both links at the start of each step (`pump()`: the
-device's stream, and the MAVLink datagrams, which carry the kernel's arrival stamps; steps every 100 ms
-and when the next frame is due, see `step_schedule`), putting what
+device's stream, and the MAVLink datagrams, which carry the kernel's arrival stamps; steps every 100 ms,
+and from just before the next frame is due also when input arrives on those links, see `step_schedule`
+and `worker_wake`), putting what
 arrived in one inbox, and then takes each input from the inbox, writes it to the log and feeds it to
 the synchroniser, in that order, polls the synchroniser for frames and writes clock estimates and
 counters. The device link's reader thread sends the TIME_SYNC requests at the rate the worker sets and
@@ -72,6 +73,7 @@ from icgt.recorder.native_heap import NativeHeapTrimmer
 from icgt.recorder.resync import TakeOver, take_over
 from icgt.recorder.step_schedule import StepSchedule
 from icgt.recorder.tuning import InterpreterTuning
+from icgt.recorder.worker_wake import WorkerWake
 from icgt.recording import McapRecorder, RecordingError, layout
 from icgt.recording.views import FoxgloveViews
 from icgt.sync import SyncConfig, SyncEvent, Synchroniser
@@ -173,7 +175,7 @@ class Recorder:
         self._capture_interval_s: float | None = None  # of the capture running (what an outage took)
         self._cadence_hint = (0, 0)  # (captures started, the last one's interval [ns]), for the worker
         self._stop = threading.Event()
-        self._nudge = threading.Event()  # wakes the worker before its scheduled step (a capture started, stop)
+        self._nudge = WorkerWake()  # wakes the worker before its scheduled step (a capture started, stop, input)
         self._worker: threading.Thread | None = None
         self._worker_lock = threading.Lock()  # the worker's step, and stop()'s final drain
         self._registered: set[str] = set()
@@ -299,6 +301,7 @@ class Recorder:
                 self.device.stop()
         self._stop_control()
         self._close_log()
+        self._nudge.close()
         with contextlib.suppress(FileNotFoundError):
             path.unlink()
 
@@ -379,6 +382,8 @@ class Recorder:
         self._record_link_summary()
         self._close_log()
         self._tuning.restore()
+        if self._worker is None or not self._worker.is_alive():
+            self._nudge.close()
 
     def wait(self) -> None:
         """Block until stop() is called or a fatal error (full disk) ends the recording."""
@@ -661,18 +666,24 @@ class Recorder:
     def _on_frame(self, rec: FrameRecord) -> None:
         self.frames += 1
         self.schedule.on_frame(rec.mid_host_ns)
+        # The ground station waits for its CAMERA_IMAGE_CAPTURED: sent before the log's writes and the live views.
+        image = self._images.publish(self.camera, rec) if self.camera is not None else None
         self._write(topics.FRAMES, rec, rec.mid_host_ns)
         self.views.on_frame(rec)
-        if self.camera is not None:
-            self._write(layout.CAMERA_IMAGES, self._images.publish(self.camera, rec), rec.mid_host_ns)
+        if image is not None:
+            self._write(layout.CAMERA_IMAGES, image, rec.mid_host_ns)
 
     # ------------------------------------------------------------------ worker
     def _work(self) -> None:
-        # The readers never wake the worker (no switch per message): it steps on its schedule (step_schedule).
-        wait_s = self.schedule.timing.period_s
+        # The readers never wake the worker (no switch per message): it steps on its schedule (step_schedule),
+        # and while a frame is expected (the schedule is watching) also when input arrives on the links it
+        # reads itself (worker_wake), at most once per watch_min_gap_s.
+        timing = self.schedule.timing
+        wait_s = timing.period_s
+        watch: list[int] = []
         hint_seen = 0
         while True:
-            self._nudge.wait(wait_s)
+            woke_on_input = self._nudge.wait(wait_s, watch, timing.watch_min_gap_s)
             self._nudge.clear()
             if self._stop.is_set():
                 break
@@ -682,14 +693,32 @@ class Recorder:
                     hint_seen = hint[0]
                     self.schedule.expect_interval(hint[1], time.monotonic_ns())
                 with self._step():
-                    self._drain(limit=_DRAIN_MAX)
+                    read = self._drain(limit=_DRAIN_MAX)
                     now = time.monotonic_ns()
                     self._work_once(now)
                 next_ns = self.schedule.next_step_ns(now, self.sync.pending_frames)
                 wait_s = max(0.0, (next_ns - time.monotonic_ns()) / 1e9)
+                # Input that woke the worker but that its pumps did not take (the device reader holds the port
+                # while it awaits a TIME_SYNC answer) would wake it again at once: the timer only, this time.
+                watch = (
+                    self._input_fds(self.sync.pending_frames > 0)
+                    if self.schedule.watching and (read or not woke_on_input)
+                    else []
+                )
             except Exception:  # the worker must outlive any bug: frames keep being emitted
                 log.exception("recorder worker error (recording continues)")
-                wait_s = self.schedule.timing.period_s
+                wait_s = timing.period_s
+                watch = []
+        self._nudge.close()
+
+    def _input_fds(self, exposure_in: bool) -> list[int]:
+        """The descriptor of the link whose input the expected frame waits for: the device's port until its
+        exposure record is in, then the MAVLink socket (a UDP link the worker pumps) for the telemetry after
+        mid-exposure. One link at a time: each wake-up costs a step, and the other link's input alone cannot
+        complete the frame (whatever it sent is read at that step anyway)."""
+        link = self.mavlink if exposure_in else self.device
+        fd = link.readable_fd if link is not None else None
+        return [] if fd is None else [fd]
 
     def _schedule_time_sync(self) -> None:
         """The device reader sends the TIME_SYNC requests (DeviceLink.time_sync_interval_s: one wake-up per
@@ -698,12 +727,14 @@ class Recorder:
         if self.device is not None and not self._stop.is_set():
             self.device.time_sync_interval_s = self.sync.next_exchange_interval_s()
 
-    def _drain(self, limit: int | None) -> None:
-        # What arrived since the last step, into the inbox: the links this thread reads (see the module doc).
+    def _drain(self, limit: int | None) -> int:
+        """What arrived since the last step, into the inbox (the links this thread reads, see the module doc),
+        then handled; returns what the pumps read (bytes and datagrams: 0 when nothing)."""
+        read = 0
         if self.device is not None:
-            self.device.pump()
+            read += self.device.pump()
         if self.mavlink is not None:
-            self.mavlink.pump()
+            read += self.mavlink.pump()
         inbox = self._inbox
         n = 0
         while inbox and (limit is None or n < limit):
@@ -711,6 +742,7 @@ class Recorder:
             n += 1
         if self._other_systems:
             self._flush_other_systems()
+        return read
 
     def _handle(self, item: tuple[int, Any, int]) -> None:
         kind, payload, rx_ns = item

@@ -6,19 +6,22 @@ cold interpreter after the pause): on this class of machine about 0.8 ms of CPU,
 about 0.8 % of a core more than 10 (measured with deck_pass). So the worker steps rarely, every
 ``period_s``.
 
-A frame is ready once the telemetry after its mid-exposure has come in, and the ground station waits for
-it (CAMERA_IMAGE_CAPTURED): stepping at the base period alone would add up to a period to each frame.
-Exposures come at a steady interval while capturing (the device's interval timer; an autopilot's distance
-trigger at a steady speed), so the schedule also steps when the next one is due: the last frame's
-mid-exposure, plus the interval between the last two frames, plus ``ready_after_s`` for the exposure record
-and the telemetry sample after it to arrive (50 Hz telemetry: at most 20 ms after, plus the links'
-latency). A frame still pending after a step (its telemetry was late) is tried again ``retry_s`` later, a
-few times, then at the base period (a frame that waits out a GPS gap must not make the worker step at
-50 Hz for seconds). A wrong guess costs one step, never a frame: the base period steps regardless, and
-after ``max_misses`` due times without a frame the cadence is forgotten (the capture stopped).
+A frame is ready once its exposure record and the telemetry after its mid-exposure have come in, and the
+ground station waits for it (CAMERA_IMAGE_CAPTURED): stepping at the base period alone would add up to a
+period to each frame. Exposures come at a steady interval while capturing (the device's interval timer; an
+autopilot's distance trigger at a steady speed), so the schedule also knows when the next one is due: the
+last frame's mid-exposure plus the interval between the last two frames. From ``watch_lead_s`` before that
+predicted mid-exposure until ``ready_after_s`` after it (50 Hz telemetry: its sample after mid-exposure
+comes at most 20 ms after, plus the links' latency) the schedule is *watching*: the worker also wakes when
+input arrives on the links it reads (`icgt.recorder.worker_wake`), so a frame is emitted as soon as its
+inputs are in, not at the next timed step. A frame still pending after a step (its telemetry was late) is
+watched for, with a timed retry every ``retry_s``, a few times, then only at the base period (a frame that
+waits out a GPS gap must not make the worker wake for every message for seconds). A wrong guess costs one
+step, never a frame: the base period steps regardless, and after ``max_misses`` due times without a frame
+the cadence is forgotten (the capture stopped).
 
 Pure and single-threaded: the worker calls `on_frame` for each frame it emits and asks `next_step_ns`
-after each step. Times are host monotonic ns.
+after each step (and then `watching`). Times are host monotonic ns.
 """
 
 from __future__ import annotations
@@ -36,12 +39,17 @@ class StepTiming:
     # and Linux's serial line discipline holds 4 KB (N_TTY_BUF_SIZE) before it throttles the port; at a 10 k
     # msg/s flood 100 ms is ~1000 datagrams, a quarter of the 4 MB UDP receive buffer.
     period_s: float = 0.1
-    # A frame pending after a step is tried again this much later. The telemetry after mid-exposure arrives
-    # within its period (20 ms at 50 Hz) plus the link's latency: a 10 ms retry adds at most that to a frame
-    # whose sample came just after the due step (benchmarks/capture_rates.py prints the parts).
+    # A frame pending after a step is tried again this much later if no input woke the worker meanwhile
+    # (the watch wakes it when its telemetry arrives; benchmarks/capture_rates.py prints the parts).
     retry_s: float = 0.01
     max_retries: int = 10  # consecutive retries (100 ms), then the base period (a frame waiting out a GPS gap)
     ready_after_s: float = 0.025  # after a due mid-exposure: its exposure record and the telemetry after it
+    # The watch opens this long before the predicted mid-exposure: the host's prediction is the last frame's
+    # mid plus the interval, off by the shutter's jitter (a few ms) and the clock map's error (< 1 ms).
+    watch_lead_s: float = 0.003
+    # While watching, the worker wakes on input at most once per this [s]: the device sends a USB transfer
+    # every 1-2 ms; a wake-up costs as much as handling dozens of messages (a few wakes per frame, not 20).
+    watch_min_gap_s: float = 0.003
     first_frame_s: float = 1.0  # after a capture starts, steps at retry_s until its first frame (shutter lag)
     min_interval_s: float = 0.04  # frames closer (two cameras; 20 fps, the fastest trigger, is 50 ms) set none
     max_interval_s: float = 5.0  # frames farther apart than this: no cadence (single shots)
@@ -54,6 +62,8 @@ class StepTiming:
             raise ValueError("min_interval_s must be > 0 and below max_interval_s")
         if self.ready_after_s < 0.0 or self.max_retries < 0 or self.max_misses < 1:
             raise ValueError("ready_after_s and max_retries must be >= 0, max_misses >= 1")
+        if not 0.0 <= self.watch_lead_s < self.min_interval_s or not 0.0 <= self.watch_min_gap_s <= self.retry_s:
+            raise ValueError("watch_lead_s must be in [0, min_interval_s), watch_min_gap_s in [0, retry_s]")
 
 
 class StepSchedule:
@@ -67,6 +77,8 @@ class StepSchedule:
         self._ready_ns = int(t.ready_after_s * 1e9)
         self._min_ns = int(t.min_interval_s * 1e9)
         self._max_ns = int(t.max_interval_s * 1e9)
+        self._lead_ns = int(t.watch_lead_s * 1e9)
+        self._watching = False
         self._last_mid_ns: int | None = None
         self._interval_ns: int | None = None
         self._retries = 0
@@ -102,23 +114,41 @@ class StepSchedule:
             self._interval_ns = gap if gap <= self._max_ns else None
         self._last_mid_ns = mid_host_ns
 
+    @property
+    def watching(self) -> bool:
+        """Whether, until the time the last `next_step_ns` gave, the worker should also wake on the links'
+        input (a frame is expected now: see the module doc)."""
+        return self._watching
+
     def next_step_ns(self, now_ns: int, pending_frames: int) -> int:
-        """When to step next, after a step at ``now_ns`` that left ``pending_frames`` frames waiting."""
+        """When to step next, after a step at ``now_ns`` that left ``pending_frames`` frames waiting; sets
+        `watching`."""
+        watching = False
         nxt = now_ns + self._period_ns
         if pending_frames > 0:
             self._retries += 1
             if self._retries <= self.timing.max_retries:
                 nxt = min(nxt, now_ns + self._retry_ns)
+                watching = True
         else:
             self._retries = 0
         if now_ns < self._first_until_ns:
             nxt = min(nxt, now_ns + self._retry_ns)
+            watching = True
         interval, last = self._interval_ns, self._last_mid_ns
         if interval is not None and last is not None:
-            # The first due time after now: last + k * interval + ready, k >= 1.
+            # The first due time after now: last + k * interval + ready, k >= 1; its watch opens at the
+            # predicted mid-exposure less the lead.
             k = max(1, (now_ns - last - self._ready_ns) // interval + 1)
             if k > self.timing.max_misses:
                 self._interval_ns = None  # the capture stopped (or the trigger did)
             else:
-                nxt = min(nxt, last + k * interval + self._ready_ns)
+                due = last + k * interval + self._ready_ns
+                opens = due - self._ready_ns - self._lead_ns
+                if now_ns >= opens:
+                    nxt = min(nxt, due)
+                    watching = True
+                else:
+                    nxt = min(nxt, opens)
+        self._watching = watching
         return nxt

@@ -9,8 +9,10 @@ ground station (system 245) on the simulated autopilot's ground-station port run
 collects capture_info. Against the simulator's truth it prints:
 - exposure (true mid-exposure, host clock) -> CAMERA_IMAGE_CAPTURED delivered by MAVSDK to its callback,
   p50/p95 (target p95 <= 50 ms with GLOBAL_POSITION_INT at 50 Hz, issue 33), images with a good pose
-  only: a poor one waits out the synchroniser's bounded wait by design and is published as poor; and the part of it
-  from the synchroniser emitting the frame to MAVSDK (the camera component, the UDP hops, MAVSDK);
+  only: a poor one waits out the synchroniser's bounded wait by design and is published as poor; and its parts
+  (icgt.sim.latency): the device's exposure record read, the telemetry after mid-exposure arriving, the
+  recorder's own share (the later of those inputs to the frame's emission) and the publication (the frame
+  emitted -> MAVSDK: the camera component, the UDP hops, MAVSDK);
 - the 3D position error of the published images (MAVSDK's lat/lon/alt) next to that of the log's frames
   for the same images (target: the same: publishing must not lose accuracy), and the error of the height
   above home;
@@ -34,6 +36,7 @@ from mcap.reader import make_reader
 
 from icgt.geodesy import LocalFrame
 from icgt.sim.evaluate import read_frames, read_truth
+from icgt.sim.latency import frame_timings
 from icgt.sim.live_recorder import LiveRecorder
 from icgt.sim.scenario import load_scenario
 
@@ -99,8 +102,12 @@ def main() -> int:
     def enu(lat: float, lon: float, alt_msl: float) -> np.ndarray:
         return np.asarray(local.geodetic_to_enu(lat, lon, alt_msl + o.geoid_separation_m), dtype=float)
 
+    timings = {t.frame_seq: t for t in frame_timings(mcap)}
     latency_ms: list[float] = []
     publish_ms: list[float] = []  # the frame emitted by the synchroniser -> MAVSDK's callback
+    device_ms: list[float] = []  # true mid-exposure -> the exposure record read
+    telemetry_ms: list[float] = []  # true mid-exposure -> the telemetry after it arrived
+    recorder_ms: list[float] = []  # the later input -> the frame emitted
     err_published_m: list[float] = []
     err_log_m: list[float] = []
     err_relative_m: list[float] = []
@@ -118,9 +125,15 @@ def main() -> int:
             continue
         if t is None:
             continue
-        latency_ms.append((rx_ns - int(t["mid_host_monotonic_ns"])) / 1e6)
+        mid_ns = int(t["mid_host_monotonic_ns"])
+        latency_ms.append((rx_ns - mid_ns) / 1e6)
         if fr.get("emitted_host_ns"):
             publish_ms.append((rx_ns - int(fr["emitted_host_ns"])) / 1e6)
+        ft = timings.get(int(rec["frame_seq"]))
+        if ft is not None:
+            device_ms.append((ft.exposure_rx_ns - mid_ns) / 1e6)
+            telemetry_ms.append((ft.telemetry_rx_ns - mid_ns) / 1e6)
+            recorder_ms.append(ft.recorder_ms)
         true_enu = np.asarray(t["position_enu_m"], dtype=float)
         p = c.position
         err_published_m.append(
@@ -135,7 +148,10 @@ def main() -> int:
           f"{len(frames)} frames, interval {args.interval_s} s, GLOBAL_POSITION_INT 50 Hz")  # fmt: skip
     print(f"exposure -> CAMERA_IMAGE_CAPTURED at MAVSDK [ms]  {pct(latency_ms)}")
     print(f"   target p95 <= 50 ms -> {'OK' if lat95 <= 50 else 'ABOVE TARGET'}")
-    print(f"   of which frame emitted -> MAVSDK [ms]        {pct(publish_ms)}  (the camera's own part)")
+    print(f"   exposure record read [ms]                     {pct(device_ms)}")
+    print(f"   telemetry after mid-exposure arrived [ms]     {pct(telemetry_ms)}")
+    print(f"   the recorder's share [ms]                     {pct(recorder_ms)}  (later input -> frame emitted)")
+    print(f"   frame emitted -> MAVSDK [ms]                  {pct(publish_ms)}  (the camera's own part)")
     print(f"position error, published to MAVSDK [m]        {pct(err_published_m)}")
     print(f"position error, the log's frames [m]            {pct(err_log_m)}  (the peer: same images)")
     print(f"   published p95 within 1 cm of the log's -> {'OK' if pub95 <= log95 + 0.01 else 'WORSE'}")

@@ -38,8 +38,9 @@ from icgt.sim.scenario import load_scenario
 SCENARIO = load_scenario(Path(__file__).with_name("mavsdk_hover.toml"))
 CAMERA = 100
 PASSPHRASE = "bridge 12, pier 3 - inspection crew"
-RECORDER_SHARE_MEDIAN_MS = 10.0
-"""Bound on the median recorder share of a steady interval's frames [ms] (see the test that uses it)."""
+RECORDER_SHARE_MEDIAN_MS = 15.0
+"""Bound on the median recorder share of a steady interval's frames [ms] (the test that uses it). Measured
+2026-12-07: about 5 idle, 8 with two busy loops on the two cores; 21 before the worker watched its links."""
 M = mavlink2
 
 

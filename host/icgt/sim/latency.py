@@ -1,12 +1,16 @@
 """When each frame's inputs were there and when the recorder emitted it, from the log alone.
 
-A frame can be emitted once two inputs are in: the device's exposure record (sent at the end of the exposure,
-over USB) and the autopilot's telemetry after mid-exposure (the first GLOBAL_POSITION_INT and the first
-ATTITUDE_QUATERNION stamped at or after it; the later of their kernel receive stamps). What the recorder adds
-is its emission minus the later of the two: the recorder's own share of the latency a ground station sees,
-whatever the simulator's or the machine's load did to the inputs. The end of the exposure is mid-exposure
-plus half its duration on the recorder's clock map; the USB transfer after it (about 1 ms) counts as the
-recorder's, which makes that share an upper bound.
+A frame can be emitted once two inputs are in: the device's exposure record and the autopilot's telemetry
+after mid-exposure (the first GLOBAL_POSITION_INT and the first ATTITUDE_QUATERNION stamped at or after it;
+the later of their kernel receive stamps). What the recorder adds is its emission minus the later of the
+two: the recorder's own share of the latency a ground station sees, whatever the simulator's or the
+machine's load did to the inputs.
+
+The device sends an exposure record once its sensor snapshot is settled: the first IMU and range samples
+read at or after mid-exposure are in (firmware `SensorSnapshot::settled`), or the exposure has ended if
+later. That moment, on the device clock from the log's own sample stamps and carried to the host clock by
+the frame's mid-exposure, is when the record could be read; the USB transfer after it (about 1 ms) counts as
+the recorder's, so the share is an upper bound.
 
 Used by benchmarks/capture_rates.py (with the truth's mid-exposure for the total) and by the end-to-end
 tests that bound the recorder's share.
@@ -26,6 +30,7 @@ from icgt.recording import layout
 __all__ = ["FrameTiming", "frame_timings"]
 
 TELEMETRY_TOPICS = ("/mavlink/global_position_int", "/mavlink/attitude_quaternion")
+SAMPLE_READ_STAMPS = {"/device/imu": "read_end_t_us", "/device/range": "read_t_us"}  # the device clock [us]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -36,14 +41,15 @@ class FrameTiming:
     start_device_us: int
     mid_host_ns: int
     exposure_end_host_ns: int
+    record_ready_host_ns: int  # the device could send the record: exposure over and its snapshot settled
     exposure_rx_ns: float  # the exposure record's receipt stamp (when a reader or the worker read it)
     telemetry_rx_ns: float  # the later arrival of the first position and attitude samples at/after mid
     emitted_host_ns: float
 
     @property
     def inputs_in_ns(self) -> float:
-        """When both inputs were there: the end of the exposure or the telemetry, the later."""
-        return max(float(self.exposure_end_host_ns), self.telemetry_rx_ns)
+        """When both inputs were there: the exposure record ready to send or the telemetry, the later."""
+        return max(float(self.record_ready_host_ns), self.telemetry_rx_ns)
 
     @property
     def recorder_ms(self) -> float:
@@ -69,6 +75,10 @@ def frame_timings(mcap: Path) -> list[FrameTiming]:
     for topic in TELEMETRY_TOPICS:
         rows = sorted((int(m["time_boot_ms"]) * 1000, int(m["host_rx_ns"])) for _, m in rec.messages(topic))
         streams[topic] = (np.array([r[0] for r in rows], dtype=float), np.array([r[1] for r in rows], dtype=float))
+    samples = [
+        np.array(sorted(int(m[stamp]) for _, m in rec.messages(topic)), dtype=float)
+        for topic, stamp in SAMPLE_READ_STAMPS.items()
+    ]
     ref_ns = np.array([int(c["ref_host_ns"]) for c in clocks], dtype=float)
     out = []
     for f in rec.frames():
@@ -80,12 +90,19 @@ def frame_timings(mcap: Path) -> list[FrameTiming]:
                 1 + float(c["drift_ppm"]) * 1e-6
             )
             tel = max(_first_at_or_after(*streams[t], mid_boot_us) for t in TELEMETRY_TOPICS)
+        end_us = int(f.mid_device_us) + int(f.duration_us) // 2
+        ready_us = float(end_us)
+        for read in samples:  # the first sample of each sensor read at or after mid-exposure, if any came
+            i = int(np.searchsorted(read, float(f.mid_device_us), side="left"))
+            if i < read.size:
+                ready_us = max(ready_us, float(read[i]))
         out.append(
             FrameTiming(
                 frame_seq=int(f.frame_seq),
                 start_device_us=int(f.start_device_us),
                 mid_host_ns=mid,
                 exposure_end_host_ns=mid + int(f.duration_us) * 500,
+                record_ready_host_ns=mid + round((ready_us - int(f.mid_device_us)) * 1000),
                 exposure_rx_ns=float(exposures.get(int(f.start_device_us), math.nan)),
                 telemetry_rx_ns=tel,
                 emitted_host_ns=math.nan if f.emitted_host_ns is None else float(f.emitted_host_ns),

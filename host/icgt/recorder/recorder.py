@@ -175,6 +175,7 @@ class Recorder:
         self._capture_interval_s: float | None = None  # of the capture running (what an outage took)
         self._cadence_hint = (0, 0)  # (captures started, the last one's interval [ns]), for the worker
         self._stop = threading.Event()
+        self._worker_ident = 0  # the worker thread's ident once it runs
         self._nudge = WorkerWake()  # wakes the worker before its scheduled step (a capture started, stop, input)
         self._worker: threading.Thread | None = None
         self._worker_lock = threading.Lock()  # the worker's step, and stop()'s final drain
@@ -257,7 +258,7 @@ class Recorder:
         while True:
             self.device = DeviceLink(
                 cfg.url,
-                on_message=lambda received, rx_ns: self._inbox.append((_DEVICE, received, rx_ns)),
+                on_message=self._device_received,
                 on_event=lambda event: self._inbox.append((_DEVICE_EVENT, event, event.host_ns)),
                 on_time_sync=lambda sample: self._inbox.append((_EXCHANGE, sample, sample.host_rx_ns)),
                 batch_s=_READ_BATCH_S,
@@ -439,6 +440,14 @@ class Recorder:
                 log.info("device RTC set from the host clock")
             except CommandRefusedError as exc:
                 log.warning("device RTC not set: %s", exc)
+
+    def _device_received(self, received: DeviceReceived, rx_ns: int) -> None:
+        """Into the inbox (any thread). An exposure record that the device reader read (it reads the whole
+        stream while a TIME_SYNC answer is awaited) wakes the worker: its frame waits for the worker's next
+        step otherwise, which the worker, finding nothing on the port, would not take before the base period."""
+        self._inbox.append((_DEVICE, received, rx_ns))
+        if received.message.NAME == "EXPOSURE" and threading.get_ident() != self._worker_ident:
+            self._nudge.set()
 
     def _on_device_message(self, received: DeviceReceived, host_rx_ns: int) -> None:
         msg = received.message
@@ -675,6 +684,7 @@ class Recorder:
 
     # ------------------------------------------------------------------ worker
     def _work(self) -> None:
+        self._worker_ident = threading.get_ident()
         # The readers never wake the worker (no switch per message): it steps on its schedule (step_schedule),
         # and while a frame is expected (the schedule is watching) also when input arrives on the links it
         # reads itself (worker_wake), at most once per watch_min_gap_s.

@@ -27,6 +27,14 @@ Measured 2026-12-04 (`--capture-s 12`, 2 cores shared with other work), p95 expo
 60.7, 20 fps 40.6); everything pinned to one core (`taskset -c 0`, simulator and ground station included, a
 Pi-class stand-in) 1 / 5 / 20 fps 36.0 / 46.5 / 44.4 ms. The floor is the telemetry: the first 50 Hz sample
 after mid-exposure arrives up to 20 ms after it.
+
+Measured 2026-12-07 after the worker watches its links while a frame is expected (icgt.recorder.worker_wake),
+p95 at 0.5 / 1 / 5 / 10 / 20 fps: idle 30.9 / 34.4 / 30.0 / 27.5 / 29.4 ms (the old worker in the same hour:
+5 fps 47.4, 20 fps 41.2), the recorder's own share p95 4.6-12.1 ms; `--load 1` 62.2 / 75.2 / 78.8 / 69.8 /
+89.4 ms and `taskset -c 0` 139 / 73.7 / 63.5 / 48.3 / 117 ms, where the simulator's telemetry (p95 23-86 ms
+after mid-exposure) and its routing to this script's ground station (p95 15-47 ms) take the most: they
+share one Python process, whose threads starve first; the recorder's share p95 10-34 ms (one outlier flight
+81 ms on one core).
 """
 
 from __future__ import annotations

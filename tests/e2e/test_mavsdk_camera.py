@@ -215,6 +215,7 @@ def test_frames_of_a_steady_interval_are_emitted_as_soon_as_their_inputs_are_in(
         and 0.3e9 < t.mid_host_ns - prev2.mid_host_ns < 0.7e9  # the 0.5 s interval
     ]
     assert len(steady) >= 4, steady
+    assert all(math.isfinite(x) for x in steady), steady  # every frame's inputs are in the log
     assert sorted(steady)[len(steady) // 2] < RECORDER_SHARE_MEDIAN_MS, steady
 
 

@@ -12,6 +12,7 @@ later. That moment, on the device clock from the log's own sample stamps and car
 the frame's mid-exposure, is when the record could be read; the USB transfer after it (about 1 ms) counts as
 the recorder's, so the share is an upper bound.
 
+Device times are compared within one device boot (a log whose device rebooted mixes two clocks here).
 Used by benchmarks/capture_rates.py (with the truth's mid-exposure for the total) and by the end-to-end
 tests that bound the recorder's share.
 """
@@ -49,12 +50,17 @@ class FrameTiming:
     @property
     def inputs_in_ns(self) -> float:
         """When both inputs were there: the exposure record ready to send or the telemetry, the later."""
-        return max(float(self.record_ready_host_ns), self.telemetry_rx_ns)
+        return _later(float(self.record_ready_host_ns), self.telemetry_rx_ns)
 
     @property
     def recorder_ms(self) -> float:
         """The recorder's own share: emission minus `inputs_in_ns` [ms]."""
         return (self.emitted_host_ns - self.inputs_in_ns) / 1e6
+
+
+def _later(*times: float) -> float:
+    """The latest of `times`, nan if any is nan (Python's max() keeps or drops a nan by its position)."""
+    return math.nan if any(math.isnan(t) for t in times) else max(times)
 
 
 def _first_at_or_after(stamps: np.ndarray, rx: np.ndarray, t: float) -> float:
@@ -89,7 +95,7 @@ def frame_timings(mcap: Path) -> list[FrameTiming]:
             mid_boot_us = float(c["ref_clock_us"]) + (mid - int(c["ref_host_ns"])) / 1e3 * (
                 1 + float(c["drift_ppm"]) * 1e-6
             )
-            tel = max(_first_at_or_after(*streams[t], mid_boot_us) for t in TELEMETRY_TOPICS)
+            tel = _later(*(_first_at_or_after(*streams[t], mid_boot_us) for t in TELEMETRY_TOPICS))
         end_us = int(f.mid_device_us) + int(f.duration_us) // 2
         ready_us = float(end_us)
         for read in samples:  # the first sample of each sensor read at or after mid-exposure, if any came

@@ -126,7 +126,14 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def fly(sc: Scenario, out_dir: Path, record_args: Sequence[str] = (), *, recorder_delay_s: float = 0.0) -> Flight:
+def fly(
+    sc: Scenario,
+    out_dir: Path,
+    record_args: Sequence[str] = (),
+    *,
+    recorder_delay_s: float = 0.0,
+    recorder_nice: int | None = None,
+) -> Flight:
     """Run one scenario: simulator, `icgt record` as a separate process, a ground station commanding it.
 
     The simulator holds its scenario clock until the ground station sees the recorder's camera (and it
@@ -134,6 +141,8 @@ def fly(sc: Scenario, out_dir: Path, record_args: Sequence[str] = (), *, recorde
     schedule in it run whole however long the recorder takes to come up (`SimSession.release`).
     `record_args`: more arguments for `icgt record` (e.g. ``--live PORT``).
     `recorder_delay_s`: start the recorder that much later (a test of a slow start) [s].
+    `recorder_nice`: the recorder's niceness, set right after it starts (before it makes its threads), when
+    the simulator runs at another one (a benchmark that stands the simulator in for separate machines).
     """
     out_dir = out_dir.resolve()
     for stale in ("sim", "recording"):
@@ -153,6 +162,8 @@ def fly(sc: Scenario, out_dir: Path, record_args: Sequence[str] = (), *, recorde
          "--mavlink", urls.mavlink, "--out", str(rec_dir), "--socket", str(out_dir / "recorder.sock"), *record_args],
         stdout=recorder_log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )  # fmt: skip
+    if recorder_nice is not None:
+        os.setpriority(os.PRIO_PROCESS, recorder.pid, recorder_nice)
     gcs = GroundStation(urls.gcs, sc.autopilot.system_id)
     started = time.monotonic()
     cpu_s = wall_s = held_s = 0.0

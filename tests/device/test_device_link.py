@@ -216,7 +216,7 @@ class FakeDevice:
         self.refuse: dict[str, tuple[int, int]] = {}  # command name -> (error code, detail)
         self.received: list[Received] = []
         self._decoder = StreamDecoder()
-        self._tx = threading.Lock()
+        self._tx = threading.RLock()  # also held by a test across several writes (exclusive())
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._serve, name="fake-device", daemon=True)
         self._thread.start()
@@ -237,6 +237,11 @@ class FakeDevice:
     def write_raw(self, data: bytes) -> None:
         with self._tx:
             self.port.write(data)
+
+    def exclusive(self) -> threading.RLock:
+        """`with device.exclusive():` no reply of the serving thread (TIME_SYNC, ACK) takes a sequence number
+        or goes out in between: a test that sets `seq` itself and writes frames sees its own numbers."""
+        return self._tx
 
     def received_of(self, cls: type[Message]) -> list[Received]:
         return [r for r in list(self.received) if isinstance(r.message, cls)]
@@ -523,11 +528,12 @@ def test_a_time_sync_reply_to_no_request_is_ignored(host, device):
 # --------------------------------------------------------------------------- stream faults
 def test_corrupt_bytes_give_frames_rejected_and_decoding_goes_on(host, device):
     with started(host, device) as link:
-        seq = device.seq
-        corrupt = with_bad_crc(encode_frame(Status(t_us=device.now_us(), triggers_fired=3), seq))
-        device.write_raw(b"\x13\x37 line noise \x01\x00" + corrupt)
-        device.send(Status(t_us=device.now_us(), triggers_fired=3), seq=seq)  # the same frame, intact
-        device.seq = seq + 1
+        with device.exclusive():
+            seq = device.seq
+            corrupt = with_bad_crc(encode_frame(Status(t_us=device.now_us(), triggers_fired=3), seq))
+            device.write_raw(b"\x13\x37 line noise \x01\x00" + corrupt)
+            device.send(Status(t_us=device.now_us(), triggers_fired=3), seq=seq)  # the same frame, intact
+            device.seq = seq + 1
         host.wait(lambda: host.messages_of(Status), why="STATUS after the noise")
         rejected = host.wait(
             lambda: sum(e.count for e in host.events_of("frames_rejected")) >= 2 and host.events_of("frames_rejected")
@@ -542,10 +548,11 @@ def test_corrupt_bytes_give_frames_rejected_and_decoding_goes_on(host, device):
 
 def test_a_sequence_gap_is_reported_with_the_count(host, device):
     with started(host, device) as link:
-        device.send(Status(t_us=1))
-        device.seq += 4  # four frames the host never sees
-        device.send(Status(t_us=2))
-        first_missing = device.seq - 5
+        with device.exclusive():  # a TIME_SYNC answer in between would move the numbers
+            device.send(Status(t_us=1))
+            first_missing = device.seq
+            device.seq += 4  # four frames the host never sees
+            device.send(Status(t_us=2))
         (gap,) = host.wait(lambda: host.events_of("sequence_gap"))
         assert gap.count == 4 and gap.detail == "4 device messages missing: asked again"
         # the host asks for exactly the missing four (RESEND)
@@ -572,9 +579,10 @@ def test_a_burst_is_taken_in_few_reads_each_stamped_once(host, device):
     Over socket:// pyserial's in_waiting is 1 for any readable socket, so read(1) + read(in_waiting)
     took 2 bytes per call: 200 frames written at once came out of ~8400 reads, 200 stamps."""
     with started(host, device):
-        first = device.seq
-        device.write_raw(b"".join(encode_frame(Status(t_us=i), first + i) for i in range(200)))
-        device.seq = first + 200
+        with device.exclusive():
+            first = device.seq
+            device.write_raw(b"".join(encode_frame(Status(t_us=i), first + i) for i in range(200)))
+            device.seq = first + 200
         host.wait(lambda: len(host.messages_of(Status)) == 200, why="200 STATUS")
         with host._cv:
             stamps = {ns for r, ns in host.messages if isinstance(r.message, Status)}

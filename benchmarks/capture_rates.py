@@ -30,11 +30,13 @@ after mid-exposure arrives up to 20 ms after it.
 
 Measured 2026-12-07 after the worker watches its links while a frame is expected (icgt.recorder.worker_wake),
 p95 at 0.5 / 1 / 5 / 10 / 20 fps: idle 30.9 / 34.4 / 30.0 / 27.5 / 29.4 ms (the old worker in the same hour:
-5 fps 47.4, 20 fps 41.2), the recorder's own share p95 4.6-12.1 ms; `--load 1` 62.2 / 75.2 / 78.8 / 69.8 /
-89.4 ms and `taskset -c 0` 139 / 73.7 / 63.5 / 48.3 / 117 ms, where the simulator's telemetry (p95 23-86 ms
-after mid-exposure) and its routing to this script's ground station (p95 15-47 ms) take the most: they
-share one Python process, whose threads starve first; the recorder's share p95 10-34 ms (one outlier flight
-81 ms on one core).
+5 fps 47.4, 20 fps 41.2), the recorder's own share p95 4.6-12.1 ms. With the simulator at the load's
+priority, `--load 1` gave 62.2 / 75.2 / 78.8 / 69.8 / 89.4 ms and `taskset -c 0` (everything on one core)
+139 / 73.7 / 63.5 / 48.3 / 117 ms, most of it the simulator's: its telemetry came p95 23-86 ms after
+mid-exposure and its routing to this script's ground station took p95 15-47 ms (one Python process, whose
+threads starve first). With the simulator at SIM_NICE, `--load 1`: 38.9 / 54.9 / 50.8 / 76.7 / 44.5 ms; the
+telemetry is on time again (p95 10-20 ms) and what is left is the recorder's (share p95 3-55 ms, exposure
+record read p95 13-46 ms): its threads competing with a busy loop at the same priority.
 """
 
 from __future__ import annotations

@@ -83,17 +83,6 @@ def test_a_pending_frame_is_retried_soon_a_few_times_then_at_the_base_period() -
     assert s.watching
 
 
-def test_wakes_on_input_do_not_use_up_a_pending_frames_retry_time() -> None:
-    """The watch wakes the worker every few ms while a frame is pending: the frame is still watched for
-    max_retries x retry_s of time (100 ms), not for ten wakes (30 ms), when its telemetry is late."""
-    s = StepSchedule(StepTiming(period_s=0.1, retry_s=0.01, max_retries=10))
-    for now_ms in range(0, 99, 3):  # woken by input every 3 ms, the frame still waiting
-        assert s.next_step_ns(now_ms * MS, pending_frames=1) == (now_ms + 10) * MS
-        assert s.watching, now_ms
-    assert s.next_step_ns(100 * MS, pending_frames=1) == 200 * MS  # 100 ms: only the base period now
-    assert not s.watching
-
-
 @pytest.mark.parametrize(
     "kwargs",
     [

@@ -42,7 +42,7 @@ class StepTiming:
     # A frame pending after a step is tried again this much later if no input woke the worker meanwhile
     # (the watch wakes it when its telemetry arrives; benchmarks/capture_rates.py prints the parts).
     retry_s: float = 0.01
-    max_retries: int = 10  # retry periods (100 ms) of a pending frame, then the base period (a GPS gap)
+    max_retries: int = 10  # consecutive retries (100 ms), then the base period (a frame waiting out a GPS gap)
     ready_after_s: float = 0.025  # after a due mid-exposure: its exposure record and the telemetry after it
     # The watch opens this long before the predicted mid-exposure: the host's prediction is the last frame's
     # mid plus the interval, off by the shutter's jitter (a few ms) and the clock map's error (< 1 ms).
@@ -81,8 +81,7 @@ class StepSchedule:
         self._watching = False
         self._last_mid_ns: int | None = None
         self._interval_ns: int | None = None
-        self._pending_since_ns: int | None = None  # a frame has been pending since then [ns]
-        self._retry_window_ns = t.max_retries * self._retry_ns
+        self._retries = 0
         self._first_ns = int(t.first_frame_s * 1e9)
         self._first_until_ns = 0  # a capture started: waiting for its first frame until then [ns]
 
@@ -98,7 +97,7 @@ class StepSchedule:
         the first two wait for base-period steps)."""
         self._last_mid_ns = None  # the previous capture's last frame says nothing of this one's phase
         self._interval_ns = interval_ns if self._min_ns <= interval_ns <= self._max_ns else None
-        self._pending_since_ns = None
+        self._retries = 0
         self._first_until_ns = now_ns + self._first_ns
 
     def on_frame(self, mid_host_ns: int) -> None:
@@ -127,14 +126,12 @@ class StepSchedule:
         watching = False
         nxt = now_ns + self._period_ns
         if pending_frames > 0:
-            # Retried and watched for max_retries x retry_s of time, however often input woke the worker.
-            if self._pending_since_ns is None:
-                self._pending_since_ns = now_ns
-            if now_ns - self._pending_since_ns < self._retry_window_ns:
+            self._retries += 1
+            if self._retries <= self.timing.max_retries:
                 nxt = min(nxt, now_ns + self._retry_ns)
                 watching = True
         else:
-            self._pending_since_ns = None
+            self._retries = 0
         if now_ns < self._first_until_ns:
             nxt = min(nxt, now_ns + self._retry_ns)
             watching = True

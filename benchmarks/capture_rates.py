@@ -2,7 +2,7 @@
 """Benchmark: the recorder at 5, 10 and 20 fps, each figure next to the 5 fps baseline of the same run.
 
     .venv/bin/python benchmarks/capture_rates.py [--fps 5,10,20] [--capture-s 12] [--load N [--recorder-nice K]]
-                                                 [--out DIR]
+                                                 [--mavlink-tcp] [--out DIR]
 
 Flies the deck_pass scenario (its unplug and link-drop faults removed) once per rate (interval capture,
 started and stopped by the ground station, a camera with the Sony Alpha 9's 20 fps top rate, a 48 +- 2 ms
@@ -133,10 +133,12 @@ def raise_simulator_priority() -> bool:
     return True
 
 
-def fly_rate(fps: float, capture_s: float, out: Path, recorder_nice: int | None = None) -> dict[str, Any]:
+def fly_rate(
+    fps: float, capture_s: float, out: Path, recorder_nice: int | None = None, mavlink_over_tcp: bool = False
+) -> dict[str, Any]:
     """One flight at `fps`: its pairing, the recorder's CPU time and the latencies."""
     sc = scenario_at(fps, capture_s)
-    flight = fly(sc, out / sc.name, recorder_nice=recorder_nice)
+    flight = fly(sc, out / sc.name, recorder_nice=recorder_nice, mavlink_over_tcp=mavlink_over_tcp)
     frames = read_frames(flight.mcap)
     result = evaluate(sc, frames, read_truth(flight.truth_exposures))
     parts = latency_parts_ms(flight)
@@ -167,6 +169,10 @@ def main() -> int:
     parser.add_argument(
         "--recorder-nice", type=int, default=0, help="with --load: the recorder's niceness (deploy's unit: -10)"
     )
+    parser.add_argument(
+        "--mavlink-tcp", action="store_true",
+        help="the recorder reads the autopilot over a TCP stream (its reader thread), not UDP (icgt.sim.tcp_bridge)",
+    )  # fmt: skip
     args = parser.parse_args()
     rates = [float(x) for x in args.fps.split(",")]
     load = ""
@@ -181,7 +187,9 @@ def main() -> int:
                 )
             else:
                 load = f", {args.load} busy-loop processes (the simulator's priority could not be raised: loaded too)"
-        rows = [fly_rate(fps, args.capture_s, args.out, recorder_nice) for fps in rates]
+        rows = [fly_rate(fps, args.capture_s, args.out, recorder_nice, args.mavlink_tcp) for fps in rates]
+    if args.mavlink_tcp:
+        load += ", MAVLink over TCP"
     base = rows[0]
     fps_list = ", ".join(f"{r:g}" for r in rates)
     print(f"\n== recorder at {fps_list} fps (deck_pass, {args.capture_s:g} s of capture{load}) ==")

@@ -30,6 +30,7 @@ from icgt.sim.evaluate import evaluate, read_frames, read_truth
 from icgt.sim.recorder_setup import GCS_SYSTEM, free_udp_port, recorder_config_text
 from icgt.sim.scenario import Scenario, load_scenario
 from icgt.sim.session import HOLD_MAX_S, SimSession
+from icgt.sim.tcp_bridge import TcpBridge
 from icgt.sim.truth import ClockMaps
 
 GCS_COMPONENT = 190
@@ -133,6 +134,7 @@ def fly(
     *,
     recorder_delay_s: float = 0.0,
     recorder_nice: int | None = None,
+    mavlink_over_tcp: bool = False,
 ) -> Flight:
     """Run one scenario: simulator, `icgt record` as a separate process, a ground station commanding it.
 
@@ -143,6 +145,8 @@ def fly(
     `recorder_delay_s`: start the recorder that much later (a test of a slow start) [s].
     `recorder_nice`: the recorder's niceness, set right after it starts (before it makes its threads), when
     the simulator runs at another one (a benchmark that stands the simulator in for separate machines).
+    `mavlink_over_tcp`: the recorder reaches the autopilot through a TCP stream (`icgt.sim.tcp_bridge`), as
+    over a serial port or ArduPilot SITL's TCP port, instead of UDP.
     """
     out_dir = out_dir.resolve()
     for stale in ("sim", "recording"):
@@ -153,13 +157,15 @@ def fly(
     config_path.write_text(recorder_config_text(sc, rec_dir))
     mav_port, gcs_port = free_udp_port(), free_udp_port()
     session = SimSession(sc, out_dir / "sim", mavlink_port=mav_port, gcs_port=gcs_port, hold=True)
+    bridge = TcpBridge(mav_port) if mavlink_over_tcp else None
     urls = session.start()
+    mavlink_url = bridge.url if bridge is not None else urls.mavlink
     log_path = out_dir / "recorder.log"
     recorder_log = log_path.open("w")
     time.sleep(recorder_delay_s)
     recorder = subprocess.Popen(
         [sys.executable, "-m", "icgt.cli", "record", "--config", str(config_path), "--device", urls.device,
-         "--mavlink", urls.mavlink, "--out", str(rec_dir), "--socket", str(out_dir / "recorder.sock"), *record_args],
+         "--mavlink", mavlink_url, "--out", str(rec_dir), "--socket", str(out_dir / "recorder.sock"), *record_args],
         stdout=recorder_log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )  # fmt: skip
     if recorder_nice is not None:
@@ -168,7 +174,7 @@ def fly(
     started = time.monotonic()
     cpu_s = wall_s = held_s = 0.0
     try:
-        print(f"recorder: icgt record --device {urls.device} --mavlink {urls.mavlink}", flush=True)
+        print(f"recorder: icgt record --device {urls.device} --mavlink {mavlink_url}", flush=True)
         cap = sc.camera.capture
         # Like QGroundControl: talk to the camera once its HEARTBEAT has been seen. With a second camera at
         # component 100 of the vehicle (scenario foreign_camera) a HEARTBEAT does not say which one is ours:
@@ -211,6 +217,8 @@ def fly(
         recorder_log.close()
         gcs.close()
         session.stop()
+        if bridge is not None:
+            bridge.close()
     mcaps = sorted(rec_dir.glob("*.mcap"))
     if recorder.returncode != 0 or not mcaps:
         raise IcgtError(f"the recorder failed (exit {recorder.returncode}); see {log_path}")

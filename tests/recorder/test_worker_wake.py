@@ -73,3 +73,38 @@ def test_a_descriptor_closed_by_its_link_leaves_the_timer_and_the_nudge() -> Non
         wake.close()
     wake.set()  # after close: nothing written anywhere, no error
     wake.close()
+
+
+def test_thread_input_ends_a_wait_that_watches_it_after_the_minimum_gap() -> None:
+    """A MAVLink link read by its own thread (serial, TCP) hands a message over: the worker watching for a
+    frame's telemetry wakes for it, as it does for a datagram on the UDP socket it pumps."""
+    wake = WorkerWake()
+    try:
+        wake.watch_thread_input = True
+        threading.Timer(0.05, wake.thread_input).start()
+        t0 = time.monotonic()
+        assert wake.wait(10.0, [wake.thread_input_fd], min_gap_s=0.01) is True
+        assert time.monotonic() - t0 < 5.0
+        wake.clear()  # the signal is reset with the nudge
+        t0 = time.monotonic()
+        assert wake.wait(0.05, [wake.thread_input_fd]) is False
+        assert time.monotonic() - t0 >= 0.04
+    finally:
+        wake.close()
+
+
+def test_thread_input_is_not_signalled_while_not_watched() -> None:
+    """Between frames the reader thread's messages cost no system call and leave nothing that would end the
+    next watching wait at once."""
+    wake = WorkerWake()
+    try:
+        for _ in range(100):
+            wake.thread_input()  # not watched: nothing written
+        wake.watch_thread_input = True
+        t0 = time.monotonic()
+        assert wake.wait(0.05, [wake.thread_input_fd]) is False
+        assert time.monotonic() - t0 >= 0.04
+    finally:
+        wake.close()
+    wake.watch_thread_input = True
+    wake.thread_input()  # after close(): ignored, no write to a reused descriptor number

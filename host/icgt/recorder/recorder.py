@@ -10,7 +10,8 @@ arrived in one inbox, and then takes each input from the inbox, writes it to the
 the synchroniser, in that order, polls the synchroniser for frames and writes clock estimates and
 counters. The device link's reader thread sends the TIME_SYNC requests at the rate the worker sets and
 reads the device's answers the moment they arrive (their stamps are what the clock filter uses); on a
-serial or TCP MAVLink link the link's reader thread stamps and hands on what arrives. Waking a thread
+serial or TCP MAVLink link the link's reader thread stamps and hands on what arrives (and wakes the
+worker when it watches for a frame's telemetry: `worker_wake`'s thread input). Waking a thread
 costs as much CPU as handling dozens of messages: this way the worker and the device reader wake about
 40 times a second while capturing at 5 fps (about 55 with the log writer and the rest), where the threads
 woke about 230 times.
@@ -590,10 +591,7 @@ class Recorder:
             on_event=lambda event: self._inbox.append((_MAVLINK_EVENT, event, event.host_ns)),
             on_timesync_sent=lambda tx_ns: self._inbox.append((_TIMESYNC_SENT, tx_ns, tx_ns)),
         )
-        self.mavlink.subscribe(
-            lambda rec: self._inbox.append((_MAVLINK, rec, rec.rx_ns)),
-            undecoded=lambda batch: self._inbox.append((_MAVLINK, batch, batch.rx_ns)),  # other systems, in bulk
-        )
+        self.mavlink.subscribe(self._mavlink_received, undecoded=self._mavlink_received)  # others: in bulk
         self.mavlink.start()
         settings = capture_settings(
             lambda: self._capture,
@@ -603,6 +601,12 @@ class Recorder:
         )
         self.camera = build_camera(self.config, self.mavlink, _CaptureHandler(self), settings)  # logs its refusals
         self.camera.start()
+
+    def _mavlink_received(self, rec: MavlinkMessage | UndecodedBatch) -> None:
+        """Into the inbox (the worker's thread when it pumps the link, else the link's reader thread, which
+        then wakes a worker that watches for the telemetry of an expected frame: `_input_fds`)."""
+        self._inbox.append((_MAVLINK, rec, rec.rx_ns))
+        self._nudge.thread_input()
 
     def _on_mavlink_message(self, rec: MavlinkMessage | UndecodedBatch) -> None:
         if isinstance(rec, UndecodedBatch):  # other systems' frames (all of a flood): logged and counted in bulk
@@ -710,23 +714,28 @@ class Recorder:
                 wait_s = max(0.0, (next_ns - time.monotonic_ns()) / 1e9)
                 # Input that woke the worker but that its pumps did not take (the device reader holds the port
                 # while it awaits a TIME_SYNC answer) would wake it again at once: the timer only, this time.
-                watch = (
-                    self._input_fds(self.sync.pending_frames > 0)
-                    if self.schedule.watching and (read or not woke_on_input)
-                    else []
-                )
+                # (The thread-input signal cannot: the wait's clear() emptied it.)
+                took = read or not woke_on_input or self._nudge.watch_thread_input
+                self._nudge.watch_thread_input = False  # _input_fds sets it again while it watches for it
+                watch = self._input_fds(self.sync.pending_frames > 0) if self.schedule.watching and took else []
             except Exception:  # the worker must outlive any bug: frames keep being emitted
                 log.exception("recorder worker error (recording continues)")
                 wait_s = timing.period_s
                 watch = []
+                self._nudge.watch_thread_input = False
         self._nudge.close()
 
     def _input_fds(self, exposure_in: bool) -> list[int]:
         """The descriptor of the link whose input the expected frame waits for: the device's port until its
         exposure record is in, then the MAVLink socket (a UDP link the worker pumps) for the telemetry after
         mid-exposure. One link at a time: each wake-up costs a step, and the other link's input alone cannot
-        complete the frame (whatever it sent is read at that step anyway)."""
+        complete the frame (whatever it sent is read at that step anyway). A MAVLink link read by its own
+        thread (serial, TCP) hands its messages over through the wake's thread-input signal instead."""
         link = self.mavlink if exposure_in else self.device
+        threaded = exposure_in and self.mavlink is not None and self.mavlink.running and not self.mavlink.pumped
+        self._nudge.watch_thread_input = threaded
+        if threaded:
+            return [self._nudge.thread_input_fd]
         fd = link.readable_fd if link is not None else None
         return [] if fd is None else [fd]
 

@@ -2,7 +2,7 @@
 """Benchmark: the recorder at 5, 10 and 20 fps, each figure next to the 5 fps baseline of the same run.
 
     .venv/bin/python benchmarks/capture_rates.py [--fps 5,10,20] [--capture-s 12] [--load N [--recorder-nice K]]
-                                                 [--mavlink-tcp] [--out DIR]
+                                                 [--mavlink-tcp] [--recorder-cpu N] [--out DIR]
 
 Flies the deck_pass scenario (its unplug and link-drop faults removed) once per rate (interval capture,
 started and stopped by the ground station, a camera with the Sony Alpha 9's 20 fps top rate, a 48 +- 2 ms
@@ -134,11 +134,18 @@ def raise_simulator_priority() -> bool:
 
 
 def fly_rate(
-    fps: float, capture_s: float, out: Path, recorder_nice: int | None = None, mavlink_over_tcp: bool = False
+    fps: float,
+    capture_s: float,
+    out: Path,
+    recorder_nice: int | None = None,
+    mavlink_over_tcp: bool = False,
+    recorder_cpus: set[int] | None = None,
 ) -> dict[str, Any]:
     """One flight at `fps`: its pairing, the recorder's CPU time and the latencies."""
     sc = scenario_at(fps, capture_s)
-    flight = fly(sc, out / sc.name, recorder_nice=recorder_nice, mavlink_over_tcp=mavlink_over_tcp)
+    flight = fly(
+        sc, out / sc.name, recorder_nice=recorder_nice, mavlink_over_tcp=mavlink_over_tcp, recorder_cpus=recorder_cpus
+    )
     frames = read_frames(flight.mcap)
     result = evaluate(sc, frames, read_truth(flight.truth_exposures))
     parts = latency_parts_ms(flight)
@@ -173,10 +180,22 @@ def main() -> int:
         "--mavlink-tcp", action="store_true",
         help="the recorder reads the autopilot over a TCP stream (its reader thread), not UDP (icgt.sim.tcp_bridge)",
     )  # fmt: skip
+    parser.add_argument(
+        "--recorder-cpu", type=int, default=None,
+        help="the recorder alone on this CPU (its affinity), the simulator and ground station on the others",
+    )  # fmt: skip
     args = parser.parse_args()
     rates = [float(x) for x in args.fps.split(",")]
+    recorder_cpus = None if args.recorder_cpu is None else {args.recorder_cpu}
+    others = os.sched_getaffinity(0) - (recorder_cpus or set())
+    if not others:
+        parser.error(f"--recorder-cpu {args.recorder_cpu}: no other CPU is left for the simulator")
     load = ""
-    with CpuBurners(args.load) if args.load > 0 else contextlib.nullcontext():
+    with CpuBurners(args.load) if args.load > 0 else contextlib.nullcontext() as burners:
+        if recorder_cpus is not None:
+            for pid in burners.pids if burners is not None else []:
+                os.sched_setaffinity(pid, recorder_cpus)  # the load shares the recorder's core
+            os.sched_setaffinity(0, others)  # this process: the simulator's threads and device inherit it
         recorder_nice = None
         if args.load > 0:  # the burners are started: they keep niceness 0
             if raise_simulator_priority():
@@ -187,9 +206,13 @@ def main() -> int:
                 )
             else:
                 load = f", {args.load} busy-loop processes (the simulator's priority could not be raised: loaded too)"
-        rows = [fly_rate(fps, args.capture_s, args.out, recorder_nice, args.mavlink_tcp) for fps in rates]
+        rows = [
+            fly_rate(fps, args.capture_s, args.out, recorder_nice, args.mavlink_tcp, recorder_cpus) for fps in rates
+        ]
     if args.mavlink_tcp:
         load += ", MAVLink over TCP"
+    if recorder_cpus is not None:
+        load += f", the recorder alone on CPU {args.recorder_cpu}"
     base = rows[0]
     fps_list = ", ".join(f"{r:g}" for r in rates)
     print(f"\n== recorder at {fps_list} fps (deck_pass, {args.capture_s:g} s of capture{load}) ==")

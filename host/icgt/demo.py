@@ -135,6 +135,7 @@ def fly(
     recorder_delay_s: float = 0.0,
     recorder_nice: int | None = None,
     mavlink_over_tcp: bool = False,
+    recorder_cpus: set[int] | None = None,
 ) -> Flight:
     """Run one scenario: simulator, `icgt record` as a separate process, a ground station commanding it.
 
@@ -147,6 +148,8 @@ def fly(
     the simulator runs at another one (a benchmark that stands the simulator in for separate machines).
     `mavlink_over_tcp`: the recorder reaches the autopilot through a TCP stream (`icgt.sim.tcp_bridge`), as
     over a serial port or ArduPilot SITL's TCP port, instead of UDP.
+    `recorder_cpus`: the CPUs the recorder may run on (its affinity, set with its niceness), e.g. one core
+    for a companion computer's share.
     """
     out_dir = out_dir.resolve()
     for stale in ("sim", "recording"):
@@ -170,6 +173,8 @@ def fly(
     )  # fmt: skip
     if recorder_nice is not None:
         os.setpriority(os.PRIO_PROCESS, recorder.pid, recorder_nice)
+    if recorder_cpus is not None:
+        os.sched_setaffinity(recorder.pid, recorder_cpus)
     gcs = GroundStation(urls.gcs, sc.autopilot.system_id)
     started = time.monotonic()
     cpu_s = wall_s = held_s = 0.0

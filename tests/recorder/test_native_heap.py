@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import ctypes
+import os
+import subprocess
+import sys
 import threading
 from pathlib import Path
 
@@ -63,3 +66,49 @@ def test_trimmer_waits_its_interval() -> None:
     trimmer.maybe_trim(31_000_000_000)
     expected = 0 if malloc_trim() is None else 1
     assert trimmer.trims == expected
+
+
+_ARENA_PROBE = """
+import ctypes, os, sys, tempfile, threading
+from icgt.recorder.native_heap import limit_malloc_arenas
+if sys.argv[1] == "limit":
+    assert limit_malloc_arenas(1) is True
+libc = ctypes.CDLL(None)
+libc.malloc.restype = ctypes.c_void_p
+libc.malloc.argtypes = [ctypes.c_size_t]
+libc.free.argtypes = [ctypes.c_void_p]
+libc.fopen.restype = ctypes.c_void_p
+libc.fopen.argtypes = [ctypes.c_char_p, ctypes.c_char_p]
+libc.malloc_info.argtypes = [ctypes.c_int, ctypes.c_void_p]
+libc.fclose.argtypes = [ctypes.c_void_p]
+go = threading.Barrier(4)
+def work():
+    go.wait()
+    blocks = [libc.malloc(4096) for _ in range(200)]
+    for b in blocks:
+        libc.free(b)
+threads = [threading.Thread(target=work) for _ in range(4)]
+for t in threads:
+    t.start()
+for t in threads:
+    t.join()
+path = os.path.join(tempfile.mkdtemp(), "malloc_info.xml")
+f = libc.fopen(path.encode(), b"w")
+libc.malloc_info(0, f)
+libc.fclose(f)
+print(open(path).read().count("<heap nr="))
+"""
+
+
+def test_the_recorder_s_threads_share_one_malloc_arena() -> None:
+    """limit_malloc_arenas(1) (the recorder's start): threads started after it allocate from one arena, where
+    by default each new thread gets its own (whose small free chunks the trim cannot give back)."""
+    env = {k: v for k, v in os.environ.items() if k != "MALLOC_ARENA_MAX"}
+
+    def heaps(mode: str) -> int:
+        out = subprocess.run([sys.executable, "-c", _ARENA_PROBE, mode], env=env, capture_output=True, text=True)
+        assert out.returncode == 0, out.stderr
+        return int(out.stdout.strip())
+
+    assert heaps("default") > 1  # the control: glibc gives the threads arenas of their own
+    assert heaps("limit") == 1

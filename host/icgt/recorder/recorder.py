@@ -70,7 +70,7 @@ from icgt.recorder.camera_settings import capture_settings
 from icgt.recorder.config import CaptureSection, RecorderConfig
 from icgt.recorder.device_stop import SelfStopWatch
 from icgt.recorder.log_file import RecorderLog, board_name, device_metadata, start_metadata
-from icgt.recorder.native_heap import NativeHeapTrimmer
+from icgt.recorder.native_heap import NativeHeapTrimmer, limit_malloc_arenas
 from icgt.recorder.resync import TakeOver, take_over
 from icgt.recorder.step_schedule import StepSchedule
 from icgt.recorder.tuning import InterpreterTuning
@@ -206,6 +206,7 @@ class Recorder:
         removed again if anything after that fails."""
         cfg = self.config
         out = _output_dir(cfg.output.dir)
+        limit_malloc_arenas(1)  # before its threads start: their free memory in one arena (native_heap)
         self._starting.set()
         if self._control_path is not None:
             # First, so that `icgt status` can say "waiting for the device" while it is not there yet.

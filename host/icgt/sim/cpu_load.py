@@ -23,6 +23,11 @@ class CpuBurners:
         self.count = count if count is not None else os.cpu_count() or 1
         self._procs: list[subprocess.Popen[bytes]] = []
 
+    @property
+    def pids(self) -> list[int]:
+        """The running burners' process ids (to pin them: os.sched_setaffinity)."""
+        return [proc.pid for proc in self._procs]
+
     def __enter__(self) -> CpuBurners:
         for _ in range(self.count):
             self._procs.append(subprocess.Popen([sys.executable, "-c", _SPIN]))

@@ -40,6 +40,15 @@ telemetry is on time again (p95 10-20 ms) and what is left is the recorder's (sh
 record read p95 13-46 ms): its threads competing with a busy loop at the same priority. With the recorder
 at nice -10 as well (`--load 1 --recorder-nice -10`, what deploy/icgt-recorder@.service sets): 41.0 / 32.6 /
 41.1 / 29.9 / 31.5 ms (goal met at every rate), its share p95 6.7-12.4 ms.
+
+Measured 2026-12-07 (second session; a soak probe of the recorder ran beside it), p95 at 0.5 / 1 / 5 / 10 /
+20 fps: the recorder alone on one core (`--recorder-cpu 0`, a Pi-class share; the simulator and this script
+on the other) 31.2 / 30.9 / 26.5 / 19.9 / 31.5 ms; the same with a busy loop on the recorder's core
+(`--recorder-cpu 0 --load 1`) 30.9 / 37.5 / 30.6 / 22.9 / 33.6 ms, at the deployed nice -10 20.7 / 17.8 /
+25.4 / 31.1 / 28.1 ms; `--load 1` unpinned at nice 0 27.0 / 43.0 / 31.3 / 34.7 / 24.7 ms (the previous
+session's run, same command: 38.9 / 54.9 / 50.8 / 76.7 / 44.5: the machine's hour matters). Goal met in each.
+MAVLink over TCP (`--mavlink-tcp`, the reader thread's path) at 5 / 1 fps: the recorder's share p50 / p95
+3.4 / 8.5 and 3.2 / 4.0 ms, against 6.3 / 11.7 and 9.2 / 15.5 before that thread woke the watching worker.
 """
 
 from __future__ import annotations

@@ -14,7 +14,8 @@ used ones, still grew in the thread arenas after the warm-up (soak with the 90 s
 in use flat at 15.4 MB, free in the arenas 6.1 -> 7.0 MB over minutes 8-16, about 0.1 MiB/min; Python's
 traced allocations +0.03 MB over 10 min). With one arena for every thread (`limit_malloc_arenas(1)`,
 glibc's M_ARENA_MAX, as MALLOC_ARENA_MAX=1 would set) the free memory settled at 3.9-4.0 MB from minute
-12 on. The recorder's threads allocate little outside the GIL, so one arena costs no measurable contention.
+12 on. One arena means one lock for the threads' C allocations; most of the recorder's allocations are made
+holding the GIL anyway, so they were serialised before (its latency with one arena: benchmarks/capture_rates.py).
 """
 
 from __future__ import annotations

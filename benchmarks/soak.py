@@ -25,7 +25,11 @@ free memory kept in the reader/writer threads' malloc arenas, now given back by 
 moved to disk: RSS 66.6 -> 106.8 MiB, rising to minute ~19, then +0.09 MiB/min over minutes 20-30 (within).
 Measured 2026-12-07, `--minutes 30` (tests shared the machine for its first 13 min): RSS 67.3 -> 108.3 MiB, rising to
 minute 19 (107.1), then 107.2 -> 108.3 over minutes 20-30: the fit says +0.122 MiB/min, ABOVE the bound. The
-two runs straddle it; what grows by ~2 KB/s after the warm-up is not found yet (issue 30 stays open).
+two runs straddle it. Found (a probe outside the repository, the 90 s retention, 16 min): Python's traced
+allocations flat (+0.03 MB in 10 min), glibc's in-use memory flat, the free chunks kept in the thread
+arenas +0.1 MiB/min; the recorder now gives its threads one arena (icgt.recorder.native_heap). Measured
+2026-12-07 after that, `--minutes 30` (a fresh-clone CI run and benchmarks shared the machine for its first
+20 min): RSS 67.0 -> 108.1 MiB, rising to minute 19 (107.3), then +0.028 MiB/min over minutes 20-30 (within).
 """
 
 from __future__ import annotations

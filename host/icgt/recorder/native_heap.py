@@ -33,38 +33,25 @@ TRIM_INTERVAL_S = 30.0
 """How often the recorder trims the C heap [s]."""
 
 
-def _load_trim() -> ctypes._CFuncPtr | None:  # type: ignore[name-defined]
-    name = ctypes.util.find_library("c")
-    if name is None:
+def _glibc_function(name: str, argtypes: list[type], restype: type) -> ctypes._CFuncPtr | None:  # type: ignore[name-defined]
+    """The C library's function `name`, typed; None where there is no C library or no such function."""
+    lib = ctypes.util.find_library("c")
+    if lib is None:
         return None
     try:
-        func = ctypes.CDLL(name).malloc_trim
+        func = getattr(ctypes.CDLL(lib), name)
     except (OSError, AttributeError):
         return None  # not glibc
-    func.argtypes = [ctypes.c_size_t]
-    func.restype = ctypes.c_int
+    func.argtypes = argtypes
+    func.restype = restype
     return func
 
 
-_TRIM = _load_trim()
+_TRIM = _glibc_function("malloc_trim", [ctypes.c_size_t], ctypes.c_int)
 
 _M_ARENA_MAX = -8  # glibc's malloc.h
-
-
-def _load_mallopt() -> ctypes._CFuncPtr | None:  # type: ignore[name-defined]
-    name = ctypes.util.find_library("c")
-    if name is None or _TRIM is None:  # malloc_trim is glibc's: so is this mallopt parameter
-        return None
-    try:
-        func = ctypes.CDLL(name).mallopt
-    except (OSError, AttributeError):
-        return None
-    func.argtypes = [ctypes.c_int, ctypes.c_int]
-    func.restype = ctypes.c_int
-    return func
-
-
-_MALLOPT = _load_mallopt()
+# mallopt exists in musl too but ignores M_ARENA_MAX: taken only where malloc_trim (glibc's) is there.
+_MALLOPT = _glibc_function("mallopt", [ctypes.c_int, ctypes.c_int], ctypes.c_int) if _TRIM is not None else None
 
 
 def limit_malloc_arenas(count: int) -> bool | None:

@@ -56,7 +56,7 @@ class TcpBridge:
                 elif key.data == "accept":
                     self._accept()
                 else:
-                    self._from_client()
+                    self._from_client(key.fileobj)  # type: ignore[arg-type]
 
     def _from_udp(self) -> None:
         try:
@@ -81,9 +81,9 @@ class TcpBridge:
         self._client = conn
         self._sel.register(conn, selectors.EVENT_READ, "client")
 
-    def _from_client(self) -> None:
+    def _from_client(self, sock: socket.socket) -> None:
         client = self._client
-        if client is None:
+        if client is None or sock is not client:  # an event of a client dropped earlier in this batch
             return
         try:
             data = client.recv(65536)

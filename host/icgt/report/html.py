@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import html
 import math
+from collections.abc import Sequence
 from pathlib import Path
 
 from icgt.report import plots
@@ -21,6 +22,8 @@ tr.flagged td { background: #fff1f0; }
 figure { margin: 0.5em 0; } figure svg { max-width: 100%; height: auto; }
 .note { color: #666; font-size: 0.9em; }
 .frames { max-height: 40em; overflow: auto; }
+td.change-new { color: #d62728; } td.change-grown { color: #ff7f0e; } td.change-repaired { color: #2ca02c; }
+td.change-not_seen { color: #7f7f7f; } .wide { overflow-x: auto; }
 """
 
 _COLUMNS = (
@@ -85,14 +88,16 @@ def _left_out_note(data: FlightData) -> str:
     return f'<p class="note" id="track-left-out">not drawn: {html.escape("; ".join(parts))}</p>'
 
 
-def render(data: FlightData) -> str:
-    """The whole page."""
+def render(data: FlightData, repeat: Sequence[tuple[str, str]] = ()) -> str:
+    """The whole page; `repeat`: (title, HTML) of each repeat-inspection section (icgt.report.repeat), shown after
+    the summary."""
     from icgt.version import __version__
 
     summary = "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in summarize(data))
     footprints = plots.footprint_figure(data)
     sections = [
         ("Summary", f'<table class="summary">{summary}</table>'),
+        *repeat,
         ("Track and frame positions", f"<figure>{plots.track_figure(data)}</figure>{_left_out_note(data)}"),
         (
             "Footprints on the structure face (coverage and overlap)",
@@ -119,9 +124,9 @@ def render(data: FlightData) -> str:
     )
 
 
-def write_report(data: FlightData, out: Path) -> int:
+def write_report(data: FlightData, out: Path, repeat: Sequence[tuple[str, str]] = ()) -> int:
     """Write the page to `out`; returns its size in bytes (read back)."""
-    text = render(data)
+    text = render(data, repeat)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(text, encoding="utf-8")

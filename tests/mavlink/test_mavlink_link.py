@@ -68,10 +68,10 @@ class Recorder:
 
     def on_message(self, rec: MavlinkMessage) -> None:
         with self.lock:
-            reply = self.sync.on_mavlink(rec.msg, rec.rx_ns)
-            if reply is not None:
-                self.timesync.append(reply)
-            if rec.type == "COMMAND_ACK" and self.sync.last_message_believed and self.link is not None:
+            verdict = self.sync.on_mavlink(rec.msg, rec.rx_ns)
+            if verdict.timesync is not None:
+                self.timesync.append(verdict.timesync)
+            if rec.type == "COMMAND_ACK" and verdict.believed and self.link is not None:
                 self.link.autopilot_answered(rec.msg, rec.rx_ns)
             self._hint()
 

@@ -249,3 +249,28 @@ def test_the_autopilot_is_believed_over_hours_of_clock_drift() -> None:
             refused += 1
     assert presence.origin_ns is not None
     assert refused == 0
+
+
+def test_each_message_says_whether_it_was_the_autopilots_own() -> None:
+    """`on_mavlink` returns its verdict with the message (the recorder lets only a believed COMMAND_ACK answer
+    its rate commands): the autopilot's own stream believed, the spoofer's positions and another system not."""
+    real = [(rx, frame, True) for rx, frame in Sender().stream(0, 20_000)]
+    stray = Sender()
+    spoofed = [
+        (BOOT_HOST_NS + 5 * S + k * 71 * MS + 37 * MS, stray.position(1_000_000_000 + 71 * k), False) for k in range(30)
+    ]
+    ground = mavlink2.MAVLink(None, srcSystem=255, srcComponent=190)
+    others = [
+        (BOOT_HOST_NS + 7 * S + k * S, bytes(ground.heartbeat_encode(6, 8, 0, 0, 4).pack(ground)), False)
+        for k in range(5)
+    ]
+    sync = Synchroniser()
+    parser = mavlink2.MAVLink(None)
+    verdicts: dict[bool, list[bool]] = {True: [], False: []}
+    for rx, frame, own in sorted(real + spoofed + others, key=lambda f: f[0]):
+        for msg in parser.parse_buffer(frame) or []:
+            verdict = sync.on_mavlink(msg, rx)
+            assert verdict.timesync is None  # no TIMESYNC was asked for
+            verdicts[own].append(verdict.believed)
+    assert len(verdicts[True]) == 420 and all(verdicts[True])
+    assert len(verdicts[False]) == 35 and not any(verdicts[False])

@@ -65,7 +65,7 @@ def ap_boot_ns(host_ns: int) -> int:
 
 def answer(sync: Synchroniser, ts1: int, rx_ns: int, sender=AUTOPILOT) -> TimesyncReply | None:
     """The autopilot's reply to request `ts1`, stamped by it half-way, received at `rx_ns`."""
-    return sync.on_mavlink(timesync(ap_boot_ns((ts1 + rx_ns) // 2), ts1, sender), rx_ns)
+    return sync.on_mavlink(timesync(ap_boot_ns((ts1 + rx_ns) // 2), ts1, sender), rx_ns).timesync
 
 
 # --------------------------------------------------------------------------- TimesyncPairing

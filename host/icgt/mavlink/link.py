@@ -259,9 +259,9 @@ class MavlinkLink(LinkReader):
         self._scheduler.counted(rec.msg_id)
 
     def autopilot_answered(self, msg: Any, rx_ns: int) -> None:
-        """A COMMAND_ACK that the core believed to be the autopilot's (`Synchroniser.last_message_believed`):
-        the answer to a rate command in flight. The link does not take ACKs from its reading thread: whoever
-        uses the autopilot's ids could answer for it (issue 26)."""
+        """A COMMAND_ACK that the core believed to be the autopilot's (`Synchroniser.on_mavlink` returned
+        ``believed``): the answer to a rate command in flight. The link does not take ACKs from its reading
+        thread: whoever uses the autopilot's ids could answer for it (issue 26)."""
         with self._lock:
             self._scheduler.on_command_ack(msg, rx_ns)
 

@@ -107,8 +107,8 @@ class LinkScheduler:
 
     def on_command_ack(self, msg: Any, rx_ns: int) -> None:
         """A COMMAND_ACK the core believed to be the autopilot's own (its ids and its stream, signed when signing
-        is configured: `Synchroniser.last_message_believed`): one of SET_MESSAGE_INTERVAL for us answers the
-        rate command in flight. An ACK from a second sender with the autopilot's ids never gets here."""
+        is configured: `Synchroniser.on_mavlink` returned ``believed``): one of SET_MESSAGE_INTERVAL for us
+        answers the rate command in flight. An ACK from a second sender with the autopilot's ids never gets here."""
         if int(msg.command) != _SET_MESSAGE_INTERVAL or not self._jobs:
             return
         target = (int(getattr(msg, "target_system", 0)), int(getattr(msg, "target_component", 0)))

@@ -636,8 +636,8 @@ class Recorder:
                 self.mcap.register_json(topic, f"mavlink.{name}", topics.mavlink_schema(rec.msg))
             self._registered.add(topic)
         self._write(topic, topics.mavlink_payload(rec.msg, rec.rx_ns), rec.rx_ns)
-        self.sync.on_mavlink(rec.msg, rec.rx_ns)
-        if name == "COMMAND_ACK" and self.sync.last_message_believed and self.mavlink is not None:
+        verdict = self.sync.on_mavlink(rec.msg, rec.rx_ns)
+        if name == "COMMAND_ACK" and verdict.believed and self.mavlink is not None:
             self.mavlink.autopilot_answered(rec.msg, rec.rx_ns)  # a second sender's ACK answers nothing
         self._images.on_mavlink(rec.msg, rec.src_system, rec.rx_ns)
         self.views.on_mavlink(rec.msg, rec.rx_ns)

@@ -29,7 +29,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 from icgt.clocks.autopilot_clock import AutopilotClockFilter, UtcMapper
 from icgt.clocks.autopilot_time import AutopilotTimeMap
@@ -46,7 +46,7 @@ from icgt.protocol.messages import DeviceState, Exposure, Hello, Imu, Message, P
 from icgt.sync.config import SyncConfig
 from icgt.sync.timesync import TimesyncPairing, TimesyncReply
 
-__all__ = ["SyncEvent", "Synchroniser"]
+__all__ = ["MavlinkVerdict", "SyncEvent", "Synchroniser"]
 
 log = logging.getLogger(__name__)
 
@@ -66,6 +66,20 @@ class SyncEvent:
     detail: str
     outage_ns: int = 0
     presence: PresenceChange | None = None
+
+
+class MavlinkVerdict(NamedTuple):
+    """What `Synchroniser.on_mavlink` made of a message. ``believed``: the followed autopilot's own (its ids and
+    its stream, signed when signing is configured); only such a COMMAND_ACK may answer the link's commands (a
+    second sender using the autopilot's ids answers nothing). ``timesync``: the round trip when it was a
+    TIMESYNC reply to us."""
+
+    believed: bool
+    timesync: TimesyncReply | None = None
+
+
+_BELIEVED = MavlinkVerdict(True)
+_NOT_BELIEVED = MavlinkVerdict(False)
 
 
 class Synchroniser:
@@ -108,9 +122,6 @@ class Synchroniser:
         self.hello: Hello | None = None
         self.last_status: Status | None = None
         self.events: list[SyncEvent] = []  # drained by the caller (`take_events`)
-        # The message `on_mavlink` took last was the followed autopilot's own (its ids and its stream, signed when
-        # signing is configured): only such a COMMAND_ACK may answer the link's commands (the recorder's check).
-        self.last_message_believed = False
         self.counts: dict[str, int] = {
             "exposures": 0,
             "exchanges": 0,
@@ -199,26 +210,25 @@ class Synchroniser:
         self.counts["mavlink_messages"] += sum(type_counts.values())
         self.telemetry.count_other_sources(type_counts)
 
-    def on_mavlink(self, msg: Any, rx_ns: int) -> TimesyncReply | None:
-        """Any MAVLink message; returns the TIMESYNC round trip when it was a reply to us. Afterwards
-        `last_message_believed` says whether it was the followed autopilot's own."""
+    def on_mavlink(self, msg: Any, rx_ns: int) -> MavlinkVerdict:
+        """Any MAVLink message: whether it was believed to be the followed autopilot's own, and the TIMESYNC
+        round trip when it was a reply to us."""
         self.counts["mavlink_messages"] += 1
-        self.last_message_believed = False
         if msg.get_srcSystem() != self.autopilot.system:
             # Another system (a ground station, another vehicle, most of a flood): nothing of it reaches the
             # clocks or the poses; only the telemetry store counts it, as ingest() would.
             self.telemetry.count_other_source(str(msg.get_type()))
-            return None
+            return _NOT_BELIEVED
         mtype = str(msg.get_type())
         if self.config.require_signed_autopilot and not msg.get_signed():
             self._unsigned(mtype, rx_ns)
-            return None
+            return _NOT_BELIEVED
         was_lost = self.autopilot.lost
         fresh = self.autopilot.observe(msg, mtype, rx_ns)
         if fresh is Freshness.SECOND_SENDER:
             self._second_sender(rx_ns)
-            return None
-        self.last_message_believed = fresh is not None
+            return _NOT_BELIEVED
+        verdict = _BELIEVED if fresh is not None else _NOT_BELIEVED
         if fresh is not None and fresh is not Freshness.SAME:
             self._appeared(PresenceChange(fresh.value), rx_ns, was_lost)
         if fresh is not None and mtype in BOOT_CLOCK_TYPES:
@@ -227,18 +237,19 @@ class Synchroniser:
                 self.autopilot_one_way.add(boot_ms * 1000.0 + 500.0, rx_ns)  # centre of the truncated ms
         if mtype == "TIMESYNC":
             if fresh is None:
-                return None  # not from the autopilot we follow
+                return verdict  # not from the autopilot we follow
             reply = self.timesync.reply(msg, rx_ns)
-            if reply is not None:
-                self.autopilot_clock.add_timesync(reply.host_tx_ns, reply.autopilot_tc1_ns, reply.host_rx_ns)
-            return reply
+            if reply is None:
+                return verdict
+            self.autopilot_clock.add_timesync(reply.host_tx_ns, reply.autopilot_tc1_ns, reply.host_rx_ns)
+            return MavlinkVerdict(True, reply)
         if mtype == "HEARTBEAT":
-            return None
+            return verdict
         self.telemetry.autopilot_component = self.autopilot.component or self._default_component
         self.telemetry.ingest(MavlinkMessage(msg, rx_ns))
         if mtype == "SYSTEM_TIME" and fresh is not None:  # the autopilot's own, not a companion's
             self.utc.add_system_time(int(msg.time_unix_usec), int(msg.time_boot_ms))
-        return None
+        return verdict
 
     def _appeared(self, change: PresenceChange, rx_ns: int, was_lost: bool) -> None:
         """The autopilot seen first, back after its timeout, or rebooted: TIMESYNC requests sent before are not

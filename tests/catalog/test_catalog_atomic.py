@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 import pyarrow.parquet as pq
+import pytest
 import synth_logs as sl
 from conftest import SynthFlight, make_flight, snapshot
 
@@ -141,3 +142,66 @@ def test_an_add_in_progress_keeps_its_work_folder_while_another_add_publishes(
     assert not live.exists()
     assert add_flight(cat, flight_a.log, "pier-7").status == "added"
     assert len(Catalog(cat).partitions()) == 2 and not any((cat / ".staging").iterdir())
+
+
+def test_adds_that_create_one_catalogue_at_once_all_find_it(tmp_path: Path) -> None:
+    """The first tasks of an `icgt batch` into a new catalogue create it together: each must end with the one
+    marker, none refused (the marker used to be written through one shared temporary name, so one creator's
+    rename could find the other's file gone)."""
+    import threading
+
+    n = 8
+    for k in range(40):
+        root = tmp_path / f"cat{k}"
+        barrier = threading.Barrier(n)
+        errors: list[BaseException] = []
+
+        def create(
+            root: Path = root, barrier: threading.Barrier = barrier, errors: list[BaseException] = errors
+        ) -> None:
+            barrier.wait()
+            try:
+                Catalog(root, create=True)
+            except BaseException as exc:
+                errors.append(exc)
+
+        threads = [threading.Thread(target=create) for _ in range(n)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(timeout=60)
+        assert errors == [], (k, errors)
+        assert sorted(p.name for p in root.iterdir()) == ["icgt-catalog.json"], k
+
+
+def test_a_failed_add_leaves_a_catalogue_another_add_filled_meanwhile(
+    flight_a: SynthFlight, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A failed add removes the catalogue it created, but not once another add (a batch's other flight) has
+    published into it: the partition that landed meanwhile stays."""
+    from icgt.catalog import CatalogError
+    from icgt.catalog import store as store_mod
+
+    cat = tmp_path / "cat"
+    real_add = store_mod.Catalog.add
+    calls: list[str] = []
+
+    def add(self: Catalog, log: Path, structure: str, **kw: object) -> object:
+        calls.append(structure)
+        if structure == "bad":  # while this add works, the other one lands; then this one fails
+            real_add(Catalog(cat), flight_a.log, "pier-7", images=None, detections=[])  # type: ignore[arg-type]
+            raise CatalogError("this flight is bad")
+        return real_add(self, log, structure, **kw)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(store_mod.Catalog, "add", add)
+    with pytest.raises(CatalogError, match="this flight is bad"):
+        add_flight(cat, flight_a.log, "bad")
+    assert calls == ["bad"]
+    assert [p.relative_to(cat).as_posix() for p in Catalog(cat).partitions()] == [
+        "structure=pier-7/flight=1234567-00c0ffee"
+    ]
+    # and alone, a failed add into a new catalogue still leaves no folder behind
+    monkeypatch.setattr(store_mod.Catalog, "add", lambda *a, **k: (_ for _ in ()).throw(CatalogError("bad")))
+    with pytest.raises(CatalogError):
+        add_flight(tmp_path / "new", flight_a.log, "pier-7")
+    assert not (tmp_path / "new").exists()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import shutil
@@ -41,8 +42,27 @@ def add_flight(
                        wait_s=DEFAULT_WAIT_S if wait_s is None else wait_s)  # fmt: skip
     except BaseException:
         if not existed and root.is_dir():
-            shutil.rmtree(root, ignore_errors=True)
+            _remove_if_still_empty(root)
         raise
+
+
+def _remove_if_still_empty(root: Path) -> None:
+    """Remove the catalogue a failed add created, unless another add (an `icgt batch` of flights into a new
+    catalogue) has put anything into it since: checked under its write lock, which adds take to start their work
+    folder and to publish, so none is doing either meanwhile."""
+    from icgt.catalog.store import LOCK, MARKER, STAGING, Catalog
+
+    try:
+        cat = Catalog(root)
+        with cat.locked(wait_s=0.0):
+            staging = root / STAGING
+            if {p.name for p in root.iterdir()} <= {MARKER, LOCK, STAGING} and not (
+                staging.is_dir() and any(staging.iterdir())
+            ):
+                shutil.rmtree(root, ignore_errors=True)
+    except CatalogError:  # another add holds the lock (its catalogue now: left alone), or no marker was written
+        with contextlib.suppress(OSError):
+            root.rmdir()  # only if empty
 
 
 def cmd_add(args: argparse.Namespace) -> int:

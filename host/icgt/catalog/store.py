@@ -90,25 +90,43 @@ class Catalog:
             if not create:
                 raise CatalogError(f"{root}: no such catalogue")
             try:
-                root.mkdir(parents=True)
+                root.mkdir(parents=True, exist_ok=True)  # another add may be creating it at the same time
             except OSError as exc:
                 raise CatalogError(f"cannot create the catalogue {root}: {exc.strerror or exc}") from None
         if not root.is_dir():
             raise CatalogError(f"{root}: not a folder, so not a catalogue")
         if not marker.exists():
-            if create and not any(root.iterdir()):
-                self._write_marker(marker)
-            else:
+            if not create:
                 raise CatalogError(
                     f"{root}: not an icgt catalogue (no {MARKER}; a new catalogue needs an empty or missing folder)"
                 )
+            self._create(root, marker)
         self.version = self._read_marker(marker)
 
     @staticmethod
-    def _write_marker(marker: Path) -> None:
-        tmp = marker.with_name(marker.name + ".tmp")
-        tmp.write_text(json.dumps({"format": FORMAT, "schema_version": SCHEMA_VERSION}, indent=1) + "\n")
-        os.replace(tmp, marker)
+    def _create(root: Path, marker: Path) -> None:
+        """Write the marker into an empty folder. Adds that create one catalogue at the same time (`icgt batch`'s
+        first tasks) take turns on a flock of the folder itself, so one writes the marker and the others find
+        it; a marker's temporary file left by a killed creator does not make the folder someone else's."""
+        try:
+            fd = os.open(root, os.O_RDONLY | os.O_DIRECTORY)
+        except OSError as exc:
+            raise CatalogError(f"cannot create the catalogue {root}: {exc.strerror or exc}") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            if marker.exists():
+                return
+            tmp = marker.with_name(marker.name + ".tmp")
+            if any(p != tmp for p in root.iterdir()):
+                raise CatalogError(
+                    f"{root}: not an icgt catalogue (no {MARKER}; a new catalogue needs an empty or missing folder)"
+                )
+            tmp.write_text(json.dumps({"format": FORMAT, "schema_version": SCHEMA_VERSION}, indent=1) + "\n")
+            os.replace(tmp, marker)
+        except OSError as exc:
+            raise CatalogError(f"cannot create the catalogue {root}: {exc.strerror or exc}") from None
+        finally:
+            os.close(fd)  # releases the flock
 
     @staticmethod
     def _read_marker(marker: Path) -> int:

@@ -7,7 +7,7 @@ start meanwhile), five cracks and two spalls rendered on the card.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import pytest
@@ -16,9 +16,29 @@ from icgt.demo import Flight, fly
 from icgt.sim.detector import SimDetection, detect_all, write_coco, write_polylines, write_yolo
 from icgt.sim.render import render_size
 from icgt.sim.scenario import Scenario, load_scenario
+from icgt.sim.surface import JointSpec, StainSpec, check_surface
 from icgt.sim.truth import ExposureTruth
 
 SCENARIO = Path(__file__).with_name("damage_flight.toml")
+
+STAINS = (
+    StainSpec("ST1", ((0.30, 2.30), (0.55, 2.32), (0.58, 3.00), (0.33, 3.02))),  # a water streak
+    StainSpec("ST2", ((1.30, 3.60), (1.70, 3.62), (1.68, 3.98), (1.32, 4.00)), 0.22),  # a shadow
+)
+JOINTS = (JointSpec("J1", ((-2.4, 4.05), (2.4, 4.05)), 8.0),)  # a horizontal formwork joint
+"""The look-alikes painted on the damage flight's face (none within 50 mm of a defect)."""
+
+
+def with_lookalikes(sc: Scenario, *, defects: bool = True, render_width_px: int | None = None) -> Scenario:
+    """The damage scenario with stains and a joint on its face; without its defects if not `defects`."""
+    assert sc.surface is not None
+    surf = replace(sc.surface, stains=STAINS, joints=JOINTS)
+    if not defects:
+        surf = replace(surf, cracks=(), spalls=())
+    if render_width_px is not None:
+        surf = replace(surf, render_width_px=render_width_px)
+    check_surface(surf, sc.source)
+    return replace(sc, surface=surf)
 
 
 @dataclass

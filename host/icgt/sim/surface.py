@@ -13,7 +13,17 @@ A scenario's optional ``[surface]`` table (absent: the camera card keeps its sma
     [[surface.spalls]]
     id = "S1"
     points_m = [[0.5, 3.0], [0.7, 3.0], [0.7, 3.15], [0.5, 3.2]]   # polygon [m], at least three points
+    [[surface.stains]]            # a look-alike, no defect: a soft-edged dark patch (water streak, shadow)
+    id = "ST1"
+    points_m = [[0.2, 2.4], [0.45, 2.4], [0.45, 3.1], [0.2, 3.1]]   # polygon [m]
+    darkening = 0.18              # fraction of the grey level taken away inside (optional)
+    [[surface.joints]]            # a look-alike, no defect: a formwork joint, a straight dark line
+    id = "J1"
+    points_m = [[-2.2, 4.05], [2.2, 4.05]]
+    width_mm = 8.0
 
+Stains and joints are what a crack detector mistakes for defects (icgt.sim.detector_errors); they are
+no defects and are not in the truth of defects.
 Face coordinates (s, t) [m] are measured on the structure plane from ``structure.point_m`` along
 the map axes of `icgt.geometry.plane_axes` for the structure's normal: on a vertical face seen from
 the drone, s to the right and t up; on a deck (normal up) s east and t north. A face point is
@@ -63,12 +73,32 @@ class SpallSpec:
 
 
 @dataclass(frozen=True)
+class StainSpec:
+    """A look-alike: a soft-edged dark patch (a water streak, a shadow) on the face [m]; no defect."""
+
+    id: str
+    points_m: tuple[tuple[float, float], ...]
+    darkening: float = 0.18
+
+
+@dataclass(frozen=True)
+class JointSpec:
+    """A look-alike: a formwork joint, a straight dark line on the face [m], width [mm]; no defect."""
+
+    id: str
+    points_m: tuple[tuple[float, float], ...]
+    width_mm: float = 8.0
+
+
+@dataclass(frozen=True)
 class Surface:
     texture: Literal["concrete", "checkerboard"] = "concrete"
     checker_mm: float = 100.0
     render_width_px: int = 600
     cracks: tuple[CrackSpec, ...] = ()
     spalls: tuple[SpallSpec, ...] = ()
+    stains: tuple[StainSpec, ...] = ()
+    joints: tuple[JointSpec, ...] = ()
 
 
 def _points(r: TableReader, key: str, raw: Any, minimum: int) -> tuple[tuple[float, float], ...]:
@@ -120,8 +150,24 @@ def parse_surface(r: TableReader) -> Surface:
             s.fail("id", f"{sid!r} is used twice")
         ids.add(sid)
         spalls.append(SpallSpec(sid, pts))
+    stains: list[StainSpec] = []
+    for k, s in enumerate(_items(r, "stains"), 1):
+        sid = s.string("id", f"ST{k}")
+        pts = _points(s, "points_m", s._get("points_m", None), 3)
+        poly = shapely.Polygon(pts)
+        if not poly.is_valid or poly.area <= 0.0:
+            s.fail("points_m", "not a simple polygon with an area")
+        stains.append(StainSpec(sid, pts, s.number("darkening", 0.18, min_value=0.0, max_value=0.9)))
+        s.finish()
+    joints: list[JointSpec] = []
+    for k, j in enumerate(_items(r, "joints"), 1):
+        jid = j.string("id", f"J{k}")
+        pts = _points(j, "points_m", j._get("points_m", None), 2)
+        joints.append(JointSpec(jid, pts, j.number("width_mm", 8.0, positive=True, max_value=200.0)))
+        j.finish()
     r.finish()
-    return Surface(texture, checker, width, tuple(cracks), tuple(spalls))  # type: ignore[arg-type]
+    tex: Any = texture
+    return Surface(tex, checker, width, tuple(cracks), tuple(spalls), tuple(stains), tuple(joints))
 
 
 # --- texture --------------------------------------------------------------------------------
@@ -162,6 +208,27 @@ def shade(surface: Surface, st: FloatArray, gsd_m: float, seed: int = 0) -> Floa
             phase = rng.uniform(0, 2 * math.pi, size=2)
             k = 2 * math.pi / wavelength
             grey += 7.0 * np.sin(k * s0 + phase[0]) * np.sin(k * 0.77 * t0 + phase[1])
+        for stain in surface.stains:
+            # soft edge: full darkening 15 mm inside the outline, none at it
+            ring = shapely.Polygon(stain.points_m)
+            lo, hi = np.asarray(ring.bounds[:2]), np.asarray(ring.bounds[2:])
+            near = ok & (s0 >= lo[0]) & (s0 <= hi[0]) & (t0 >= lo[1]) & (t0 <= hi[1])
+            if near.any():
+                idx = np.flatnonzero(near)
+                pts = shapely.points(s0[idx], t0[idx])
+                inside = shapely.contains_xy(ring, s0[idx], t0[idx])
+                depth = np.where(inside, shapely.distance(ring.exterior, pts), 0.0)
+                grey[idx] *= 1.0 - stain.darkening * np.clip(depth / 0.015, 0.0, 1.0)
+        for j in surface.joints:
+            line = np.asarray(j.points_m)
+            half_j = max(j.width_mm / 1000.0, 1.5 * gsd_m) / 2.0
+            lo, hi = line.min(axis=0) - 2 * half_j, line.max(axis=0) + 2 * half_j
+            near = ok & (s0 >= lo[0]) & (s0 <= hi[0]) & (t0 >= lo[1]) & (t0 <= hi[1])
+            if near.any():
+                idx = np.flatnonzero(near)
+                d = polyline_distance(np.stack([s0[idx], t0[idx]], axis=1), line)
+                cover_j = min(1.0, j.width_mm / 1000.0 / (1.5 * gsd_m))
+                grey[idx] *= 1.0 - 0.35 * cover_j * np.clip(1.5 - d / half_j, 0.0, 1.0)
         for sp in surface.spalls:
             inside = shapely.contains_xy(shapely.Polygon(sp.points_m), s0, t0)
             grey = np.where(inside, 92.0 + 12.0 * np.sin(s0 * 211.0) * np.cos(t0 * 173.0), grey)
@@ -191,3 +258,9 @@ def check_surface(surface: Surface, source: str) -> None:
         for b, gb in shapes[i + 1 :]:
             if ga.distance(gb) < 0.05:
                 raise ScenarioError(f"{source}: surface: defects {a} and {b} are closer than 50 mm")
+    looks: list[tuple[str, Any]] = [(s.id, shapely.Polygon(s.points_m)) for s in surface.stains]
+    looks += [(j.id, shapely.LineString(j.points_m)) for j in surface.joints]
+    for a, ga in looks:
+        for b, gb in shapes:
+            if ga.distance(gb) < 0.05:
+                raise ScenarioError(f"{source}: surface: look-alike {a} is closer than 50 mm to defect {b}")

@@ -181,6 +181,8 @@ class _CameraSettings(MountAngles, Protocol):
     @property
     def gimbal_stabilised(self) -> bool: ...
     @property
+    def attitude_source(self) -> str: ...
+    @property
     def surface_normal_enu(self) -> tuple[float, float, float] | None: ...
     @property
     def pixel_pitch_mm(self) -> float: ...
@@ -200,6 +202,9 @@ class CameraMounting:
     surface_normal_enu: tuple[float, float, float] | None
     pixel_pitch_mm: float
     focal_length_mm: float
+    # "mount": the camera turns with the body; "gimbal": with the gimbal's reported attitude (the mount angles
+    # are then the camera's on the gimbal's device frame)
+    attitude_source: str = "mount"
 
     @classmethod
     def of(cls, cfg: _CameraSettings, *, lever_arm_body_m: tuple[float, float, float] | None = None) -> CameraMounting:
@@ -214,6 +219,7 @@ class CameraMounting:
             cfg.surface_normal_enu,
             cfg.pixel_pitch_mm,
             cfg.focal_length_mm,
+            cfg.attitude_source,
         )
 
     @cached_property
@@ -266,17 +272,26 @@ def _incidence_and_scale(
 
 
 def camera_fields(
-    reference_enu: Any | None, body_q: Any | None, range_m: float | None, mounting: CameraMounting
+    reference_enu: Any | None,
+    body_q: Any | None,
+    range_m: float | None,
+    mounting: CameraMounting,
+    gimbal_q: Any | None = None,
 ) -> CameraFields:
     """The camera's position, attitude, scale and incidence from a body pose and the range.
 
     ``reference_enu``: the autopilot's reference point [m, ENU] (None: no position); ``body_q``: FRD -> NED
-    (None: no attitude; the position is then the reference point's); ``range_m``: the valid range [m]."""
+    (None: no attitude; the position is then the reference point's); ``range_m``: the valid range [m];
+    ``gimbal_q``: the gimbal's device frame -> NED at the instant, for a mounting whose attitude source is the
+    gimbal (None there: no camera attitude)."""
     enu = camera_position_enu(reference_enu, body_q, mounting.lever_arm_body_m) if reference_enu is not None else None
     cam_q = None
     roll = pitch = yaw = None
-    if body_q is not None:
+    if mounting.attitude_source == "gimbal":
+        cam_q = np.asarray(q_multiply(gimbal_q, mounting.q_cam_body)) if gimbal_q is not None else None
+    elif body_q is not None:
         cam_q = camera_quaternion(body_q, mounting.q_cam_body, gimbal_stabilised=mounting.gimbal_stabilised)
+    if body_q is not None:
         roll, pitch, yaw = euler_deg(body_q)
     incidence, scale = _incidence_and_scale(cam_q, range_m, mounting)
     return CameraFields(

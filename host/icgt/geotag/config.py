@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import msgspec
 from msgspec import Meta
@@ -38,6 +38,13 @@ class GeotagConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     mount_yaw_deg: _Angle = 0.0
     lever_arm_body_m: tuple[_Metres, _Metres, _Metres] = (0.0, 0.0, 0.0)  # camera from the autopilot (FRD)
     gimbal_stabilised: bool = False  # a gimbal holds the camera level: only the body's yaw turns it
+    # Where the camera's attitude comes from: "mount" (the body's attitude times the mount angles above), or
+    # "gimbal" (the gimbal's own report, MAVLink Gimbal Protocol v2 GIMBAL_DEVICE_ATTITUDE_STATUS, interpolated at
+    # mid-exposure; the mount angles are then the camera's on the gimbal, usually 0). A frame without gimbal
+    # samples around mid has no camera attitude (flag gimbal_stale): never the body's in its place.
+    attitude_source: Literal["mount", "gimbal"] = "mount"
+    gimbal_max_gap_s: Annotated[float, Meta(gt=0.0, le=10.0)] = 0.5  # gimbal samples farther apart: gimbal_stale
+    gimbal_max_hold_s: Annotated[float, Meta(ge=0.0, le=10.0)] = 0.05  # beyond the last gimbal sample at most
     range_min_m: Annotated[float, Meta(ge=0.0, le=1000.0)] = 0.5
     range_max_m: Annotated[float, Meta(gt=0.0, le=1000.0)] = 40.0
     range_stale_s: Annotated[float, Meta(gt=0.0, le=10.0)] = 0.05  # a range sample farther from mid: not used

@@ -19,10 +19,11 @@ from typing import Protocol
 import numpy as np
 
 from icgt.errors import IcgtError
-from icgt.geodesy import LocalFrame, q_slerp
+from icgt.geodesy import LocalFrame, q_slerp, q_to_euler_zyx
 from icgt.geotag import parts
 from icgt.geotag.bounds import MotionAllowance
 from icgt.geotag.config import GeotagConfig
+from icgt.geotag.gimbal_pose import gimbal_at
 from icgt.geotag.position import PoseGap, PositionEstimate, PositionRules, estimate_position
 from icgt.geotag.record import FrameFlag, FrameRecord, SensorSource
 from icgt.geotag.snapshot import SNAPSHOT_AGE_SATURATED_US, ImuAtMid, snapshot_imu, snapshot_range_valid
@@ -209,6 +210,10 @@ class Geotagger:
             return False
         fused = self._tm.fused.latest()
         att = self._attitude_buffer().latest()
+        if self._cfg.attitude_source == "gimbal":
+            gimbal = self._tm.gimbal.latest()
+            if gimbal is None or gimbal.boot_us < mid_boot:
+                return False
         return fused is not None and fused.boot_us >= mid_boot and att is not None and att.boot_us >= mid_boot
 
     def _wait_limit_ms(self, mid_host_ns: int) -> float:
@@ -247,7 +252,8 @@ class Geotagger:
         imu = self._imu_at(p.mid_device_us, e, flags)
         rng = self._range_at(p.mid_device_us, e, flags)
         body_q = att[0] if att else None
-        cam = camera_fields(pos.enu if pos else None, body_q, rng[0] if rng else None, self._mounting)
+        gimbal_q = self._gimbal(mid_boot, body_q, flags) if self._cfg.attitude_source == "gimbal" else None
+        cam = camera_fields(pos.enu if pos else None, body_q, rng[0] if rng else None, self._mounting, gimbal_q)
         blur = self._blur_px(imu, mid_boot, e.duration_us, cam.scale_mm_per_px)
         if blur is not None and blur > self._cfg.blur_limit_px:
             flags.append(FrameFlag.MOTION_BLUR.value)
@@ -348,6 +354,17 @@ class Geotagger:
         shape = f * (1.0 - f)
         motion = d_rate * span * shape / 2.0 + unseen * span**2 * shape / 4.0
         return np.asarray(q_slerp(before.q_wxyz, after.q_wxyz, f), dtype=float), base + math.degrees(motion)
+
+    def _gimbal(self, mid_boot: float | None, body_q: np.ndarray | None, flags: list[str]) -> np.ndarray | None:
+        """The gimbal's device frame -> NED at mid (`gimbal_pose.gimbal_at`); None: flag gimbal_stale (never the
+        body's attitude in its place)."""
+        q = None
+        if mid_boot is not None:
+            yaw = float(q_to_euler_zyx(body_q)[2]) if body_q is not None else None
+            q = gimbal_at(self._tm.gimbal, mid_boot, yaw, self._cfg.gimbal_max_gap_s, self._cfg.gimbal_max_hold_s)
+        if q is None:
+            flags.append(FrameFlag.GIMBAL_STALE.value)
+        return q
 
     def _position_bound(
         self, pos: PositionEstimate | None, attitude_bound_deg: float | None, dev_unc_ns: int, ap_unc_us: float | None

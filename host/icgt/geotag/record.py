@@ -60,6 +60,9 @@ class FrameFlag(enum.StrEnum):
     # The device's snapshot in the EXPOSURE stood in for samples the host no longer had (issue 27, protocol 2).
     RANGE_FROM_SNAPSHOT = "range_from_snapshot"  # no valid range sample near mid: the exposure's own snapshot
     IMU_FROM_SNAPSHOT = "imu_from_snapshot"  # the snapshot is nearer mid than any IMU sample held
+    # [camera] attitude_source = "gimbal": no gimbal attitude around mid (its stream silent or too sparse), or a
+    # vehicle-frame report without the body's yaw: the frame has no camera attitude (never the body's instead)
+    GIMBAL_STALE = "gimbal_stale"
 
 
 POOR_POSE_FLAGS = (

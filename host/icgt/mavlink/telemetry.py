@@ -23,6 +23,7 @@ import math
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
+from icgt.mavlink.gimbal import GimbalSample
 from icgt.mavlink.sample_codec import PACKED_SAMPLE_BYTES, SampleCodec
 from icgt.mavlink.telemetry_buffer import TelemetryBuffer
 
@@ -358,6 +359,8 @@ class TelemetryStore:
         self.system_time: TelemetryBuffer[SystemTimeSample] = TelemetryBuffer(
             capacity, codec=SampleCodec(SystemTimeSample)
         )
+        # GIMBAL_DEVICE_ATTITUDE_STATUS, stamped by the synchroniser (`icgt.mavlink.gimbal`): not by `ingest`
+        self.gimbal: TelemetryBuffer[GimbalSample] = TelemetryBuffer(capacity, codec=SampleCodec(GimbalSample))
         self.retention_s: float | None = None
         if retention_s is not None:
             self.retain(retention_s)
@@ -378,7 +381,15 @@ class TelemetryStore:
         self._origin_moved = False
 
     def buffers(self) -> tuple[TelemetryBuffer[Any], ...]:
-        return (self.gps, self.fused, self.attitude, self.attitude_quaternion, self.local_position, self.system_time)
+        return (
+            self.gps,
+            self.fused,
+            self.attitude,
+            self.attitude_quaternion,
+            self.local_position,
+            self.system_time,
+            self.gimbal,
+        )
 
     def retain(self, retention_s: float) -> None:
         """Keep every stream's samples for ``retention_s`` [s] of boot clock (see the class doc for the bound)."""

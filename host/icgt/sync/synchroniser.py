@@ -35,11 +35,13 @@ from icgt.clocks.autopilot_clock import AutopilotClockFilter, UtcMapper
 from icgt.clocks.autopilot_time import AutopilotTimeMap
 from icgt.clocks.device_clock import DeviceClockFilter, ExchangeStatus, PpsUtcMapper
 from icgt.clocks.one_way import OneWayClock
+from icgt.clocks.two_way import ClockNotSyncedError
 from icgt.device.history import NOMINAL_RATES, DeviceRates, telemetry_retention_s
 from icgt.geotag.clock_views import AutopilotClockView, UtcView, add_pps_edge
 from icgt.geotag.geotagger import Geotagger
 from icgt.geotag.record import FrameRecord
 from icgt.mavlink.autopilot_rules import BOOT_CLOCK_TYPES, AutopilotPresence, Freshness, PresenceChange
+from icgt.mavlink.gimbal import GIMBAL_MESSAGE, gimbal_sample
 from icgt.mavlink.link_types import MavlinkMessage
 from icgt.mavlink.telemetry import TelemetryStore
 from icgt.protocol.messages import DeviceState, Exposure, Hello, Imu, Message, Pps, Range, Status
@@ -133,6 +135,8 @@ class Synchroniser:
             "late_pps_skipped": 0,
             "autopilot_second_sender_messages": 0,
             "autopilot_unsigned_messages": 0,
+            "gimbal_samples": 0,
+            "gimbal_unstamped": 0,  # GIMBAL_DEVICE_ATTITUDE_STATUS before any autopilot clock, or not a rotation
         }
         self._timesync_warned = False
         self._utc_source = ""  # the UTC source the last poll used, to log each change with its jump
@@ -245,6 +249,9 @@ class Synchroniser:
             return MavlinkVerdict(True, reply)
         if mtype == "HEARTBEAT":
             return verdict
+        if mtype == GIMBAL_MESSAGE:
+            self._on_gimbal(msg, rx_ns, own_clock=fresh is not None)
+            return verdict
         self.telemetry.autopilot_component = self.autopilot.component or self._default_component
         self.telemetry.ingest(MavlinkMessage(msg, rx_ns))
         if mtype == "SYSTEM_TIME" and fresh is not None:  # the autopilot's own, not a companion's
@@ -354,6 +361,25 @@ class Synchroniser:
     def take_events(self) -> list[SyncEvent]:
         events, self.events = self.events, []
         return events
+
+    def _on_gimbal(self, msg: Any, rx_ns: int, *, own_clock: bool) -> None:
+        """A gimbal's attitude (any component of the autopilot's system), on the autopilot's boot clock: its own
+        ``time_boot_ms`` when the autopilot's component sent it (its mount driver), else its arrival mapped onto
+        that clock (a gimbal device's boot clock is its own)."""
+        if own_clock:
+            boot_us = int(msg.time_boot_ms) * 1000 + 500  # the centre of the truncated millisecond
+        else:
+            try:
+                boot_us = round(self.autopilot_time.host_to_autopilot_us(rx_ns))
+            except ClockNotSyncedError:
+                self.counts["gimbal_unstamped"] += 1
+                return
+        sample = gimbal_sample(msg, boot_us, rx_ns)
+        if sample is None:
+            self.counts["gimbal_unstamped"] += 1
+            return
+        self.telemetry.gimbal.push(sample)
+        self.counts["gimbal_samples"] += 1
 
     def counters(self) -> dict[str, int]:
         """Everything counted, for the log and `icgt status`."""

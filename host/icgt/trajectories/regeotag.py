@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from icgt.geodesy import LocalFrame
+from icgt.geodesy import LocalFrame, q_conjugate, q_multiply
 from icgt.geotag.config import GeotagConfig
 from icgt.geotag.parts import attitude_fields
 from icgt.geotag.record import FrameFlag, FrameRecord
@@ -97,7 +97,9 @@ def _place(frame: FrameRecord, fix: PoseFix, cfg: RegeotagConfig, local: LocalFr
     body_q = fix.q_body_ned if fix.q_body_ned is not None else _recorded_attitude(frame)
     flags = set(frame.flags) - _POSE_FLAGS
     mounting = CameraMounting.of(g, lever_arm_body_m=tuple(cfg.lever_arm))
-    cam = camera_fields(np.asarray(fix.enu_m, dtype=float), body_q, _valid_range(frame), mounting)
+    cam = camera_fields(
+        np.asarray(fix.enu_m, dtype=float), body_q, _valid_range(frame), mounting, _recorded_gimbal(frame, mounting)
+    )
     lever_part = 0.0
     if body_q is None or (fix.q_body_ned is None and FrameFlag.POSE_EXTRAPOLATED.value in frame.flags):
         lever_part = mounting.lever_arm_m  # no attitude, or one held from before a telemetry gap: on that sphere
@@ -134,6 +136,16 @@ def _place(frame: FrameRecord, fix: PoseFix, cfg: RegeotagConfig, local: LocalFr
             changes.update(incidence_deg=cam.incidence_deg, scale_mm_per_px=cam.scale_mm_per_px)
     changes["flags"] = sorted(flags)
     return dataclasses.replace(frame, **changes)
+
+
+def _recorded_gimbal(frame: FrameRecord, mounting: CameraMounting) -> np.ndarray | None:
+    """A gimbal camera's attitude stays as recorded (the gimbal's report, not the trajectory's): its gimbal
+    device frame -> NED back from the recorded camera attitude. (A vehicle-frame gimbal's yaw was composed
+    with the recorded body yaw; a trajectory with another yaw does not turn it.)"""
+    if mounting.attitude_source != "gimbal" or None in (frame.cam_qw, frame.cam_qx, frame.cam_qy, frame.cam_qz):
+        return None
+    cam_q = np.array([frame.cam_qw, frame.cam_qx, frame.cam_qy, frame.cam_qz], dtype=float)
+    return np.asarray(q_multiply(cam_q, q_conjugate(mounting.q_cam_body)))
 
 
 def _valid_range(frame: FrameRecord) -> float | None:

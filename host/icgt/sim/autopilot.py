@@ -51,7 +51,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v10 import common as mavlink1_dialect
 from pymavlink.dialects.v20 import common as mavlink2
 
-from icgt.geodesy import LocalFrame, enu_to_ned, q_to_euler_zyx
+from icgt.geodesy import LocalFrame, enu_to_ned, q_from_euler_zyx, q_multiply, q_to_euler_zyx
 from icgt.sim.camera_trigger import UPDATE_PERIOD_S, CameraTrigger, trigger_due
 from icgt.sim.scenario import STREAM_NAMES, Scenario, SimError
 from icgt.sim.trajectory import Trajectory, TruthState
@@ -85,6 +85,12 @@ _FLIGHT_SW_VERSION = {
 }
 GCS_COMPONENT = 190  # MAV_COMP_ID_MISSIONPLANNER: what QGroundControl, MAVProxy and MAVSDK ground stations use
 CAMERA_COMPONENT = 100  # MAV_COMP_ID_CAMERA
+GIMBAL_COMPONENT = 154  # MAV_COMP_ID_GIMBAL: a MAVLink gimbal device (`[camera.gimbal]`), routed to the companion
+_GIMBAL_FLAGS = (
+    mavlink2.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME  # follow mode: yaw from the vehicle's heading
+    | mavlink2.GIMBAL_DEVICE_FLAGS_ROLL_LOCK
+    | mavlink2.GIMBAL_DEVICE_FLAGS_PITCH_LOCK
+)
 _EVENT_PERIOD_S = 1.0  # HEARTBEATs of forwarded ground stations and of the foreign camera
 _BURST_CHUNK_S = 0.01  # a parameter burst goes out in chunks this far apart
 _UINT16_UNKNOWN = 65535
@@ -240,6 +246,7 @@ class SimAutopilot:
             mavlink2.MAVLink(None, srcSystem=g, srcComponent=GCS_COMPONENT) for g in ap.gcs_heartbeat_systems
         ]
         self._camera_codec = mavlink2.MAVLink(None, srcSystem=self.system_id, srcComponent=CAMERA_COMPONENT)
+        self._gimbal_codec = mavlink2.MAVLink(None, srcSystem=self.system_id, srcComponent=GIMBAL_COMPONENT)
         self._streams: dict[int, _Stream] = {}
         for name in STREAM_NAMES:
             rate = ap.rates_hz.get(name, 0.0)
@@ -303,6 +310,8 @@ class SimAutopilot:
             threading.Thread(target=self._run_receiver, name="sim-autopilot-rx", daemon=True),
             threading.Thread(target=self._run_events, name="sim-autopilot-events", daemon=True),
         ]
+        if self.scenario.camera.gimbal is not None:
+            self._threads.append(threading.Thread(target=self._run_gimbal, name="sim-gimbal", daemon=True))
         for t in self._threads:
             t.start()
 
@@ -656,6 +665,43 @@ class SimAutopilot:
         return self._codec.autopilot_version_encode(
             caps, _FLIGHT_SW_VERSION[firmware], 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 0x1C67
         )
+
+    # --- the gimbal device ----------------------------------------------------------------------
+
+    def _run_gimbal(self) -> None:
+        """GIMBAL_DEVICE_ATTITUDE_STATUS of the camera's gimbal at its rate, on the truth's grid, through this
+        autopilot's routing to the companion link (the gimbal device is its own component, on its own boot
+        clock), silent in its `silent_s` windows and while the companion link is down."""
+        g = self.scenario.camera.gimbal
+        assert g is not None
+        rng = np.random.default_rng([self.scenario.seed, 0xA9, 154])
+        period_s = 1.0 / g.rate_hz
+        k = max(0, math.ceil(self._tau_now() / period_s))
+        while not self._stop.is_set():
+            tau = k * period_s
+            wait_s = (self.clocks.tau_to_host_ns(tau) + self.latency_ns - time.monotonic_ns()) / 1e9
+            if wait_s > 0:
+                self._stop.wait(min(wait_s, 0.1))
+                continue
+            k += 1
+            if tau > self.scenario.duration_s or any(a <= tau < b for a, b in g.silent_s):
+                continue
+            if self._companion is None or self._companion_dropped(tau):
+                continue
+            noise = np.radians(rng.normal(size=3) * g.noise_deg)
+            q = q_multiply(self.trajectory.gimbal_vehicle_frame(tau), q_from_euler_zyx(*noise))
+            boot_ms = round((tau - g.boot_offset_s) * 1000.0)
+            msg = self._gimbal_codec.gimbal_device_attitude_status_encode(
+                0, 0, boot_ms, _GIMBAL_FLAGS, [float(c) for c in q], 0.0, 0.0, 0.0, 0
+            )
+            try:
+                self._companion.send_as(msg, self._gimbal_codec)
+            except OSError as exc:
+                self.errors.append(f"gimbal send: {exc!r}")
+                continue
+            self.sent_counts["gimbal_device_attitude_status"] = (
+                self.sent_counts.get("gimbal_device_attitude_status", 0) + 1
+            )
 
     # --- receiving, commands and routing ------------------------------------------------------
 

@@ -80,7 +80,8 @@ mount_roll_deg = {cam.mount_roll_deg}
 mount_pitch_deg = {cam.mount_pitch_deg}
 mount_yaw_deg = {cam.mount_yaw_deg}
 lever_arm_body_m = [{cam.lever_arm_m[0]}, {cam.lever_arm_m[1]}, {cam.lever_arm_m[2]}]
-gimbal_stabilised = {"true" if cam.stabilised else "false"}
+gimbal_stabilised = {"true" if cam.stabilised and cam.gimbal is None else "false"}
+attitude_source = "{"mount" if cam.gimbal is None else "gimbal"}"
 surface_normal_enu = [{n[0]}, {n[1]}, {n[2]}]
 
 [output]

@@ -213,6 +213,31 @@ class Capture:
 
 
 @dataclass(frozen=True, kw_only=True)
+class Gimbal:
+    """A MAVLink gimbal device (component 154) carrying the camera, as a Gremsy or SIYI gimbal in follow mode.
+
+    It holds roll and pitch against the horizon and follows the vehicle's yaw with a lag; it reports its
+    attitude as GIMBAL_DEVICE_ATTITUDE_STATUS (yaw in the vehicle frame) at ``rate_hz``, through the autopilot
+    to the companion link, stamped on its own boot clock (``boot_offset_s`` after the scenario's start)."""
+
+    pitch_deg: float = 0.0
+    """Above the horizon (+90: straight up, under a deck) [deg]."""
+    pitch_sweep_deg: float = 0.0
+    """The operator nods the camera: pitch_deg + pitch_sweep_deg sin(2 pi t / pitch_sweep_period_s) [deg]."""
+    pitch_sweep_period_s: float = 6.0
+    roll_deg: float = 0.0
+    yaw_lag_s: float = 0.5
+    """The gimbal's yaw is the vehicle's this long ago (follow mode)."""
+    rate_hz: float = 20.0
+    noise_deg: float = 0.03
+    """Its own attitude error, per axis (1 sigma) [deg]."""
+    boot_offset_s: float = -3.7
+    """The gimbal's boot clock: 0 at this scenario time [s] (it boots on its own)."""
+    silent_s: tuple[Window, ...] = ()
+    """Windows [s] in which it sends nothing (a loose cable, a gimbal reboot)."""
+
+
+@dataclass(frozen=True, kw_only=True)
 class Camera:
     make: str = "SONY"
     model: str = "ILCE-9"
@@ -247,6 +272,8 @@ class Camera:
     p2: float = 0.0
     k3: float = 0.0
     capture: Capture = field(default_factory=Capture)
+    gimbal: Gimbal | None = None
+    """A gimbal carries the camera (`[camera.gimbal]`): its attitude is the gimbal's, not body times mount."""
 
     def footprint_m(self, distance_m: float) -> tuple[float, float]:
         """(width, height) of the image footprint [m] on a surface square to the optical axis."""
@@ -580,9 +607,26 @@ def _read_camera(r: TableReader) -> Camera:
         p2=r.number("p2", 0.0, min_value=-0.1, max_value=0.1),
         k3=r.number("k3", 0.0, min_value=-1.0, max_value=1.0),
         capture=capture,
+        gimbal=_read_gimbal(r.table("gimbal")) if r.has("gimbal") else None,
     )
     r.finish()
     return cam
+
+
+def _read_gimbal(r: TableReader) -> Gimbal:
+    g = Gimbal(
+        pitch_deg=r.number("pitch_deg", 0.0, min_value=-90.0, max_value=90.0),
+        pitch_sweep_deg=r.number("pitch_sweep_deg", 0.0, min_value=0.0, max_value=90.0),
+        pitch_sweep_period_s=r.number("pitch_sweep_period_s", 6.0, positive=True, max_value=600.0),
+        roll_deg=r.number("roll_deg", 0.0, min_value=-45.0, max_value=45.0),
+        yaw_lag_s=r.number("yaw_lag_s", 0.5, min_value=0.0, max_value=10.0),
+        rate_hz=r.number("rate_hz", 20.0, positive=True, max_value=200.0),
+        noise_deg=r.number("noise_deg", 0.03, min_value=0.0, max_value=10.0),
+        boot_offset_s=r.number("boot_offset_s", -3.7, max_value=0.0),
+        silent_s=r.pairs("silent_s", second_after_first=True),
+    )
+    r.finish()
+    return g
 
 
 def _read_gps(r: TableReader) -> Gps:

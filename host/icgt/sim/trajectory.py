@@ -31,7 +31,9 @@ from icgt.geodesy import (
     ned_to_enu,
     q_from_euler_zyx,
     q_from_matrix,
+    q_multiply,
     q_rotate,
+    q_to_euler_zyx,
 )
 from icgt.pose import camera_quaternion
 from icgt.sim.scenario import DeckPass, Hover, PierScan, Scenario, Survey
@@ -354,10 +356,40 @@ class Trajectory:
         x_b = np.cross(y_b, z_b)
         return q_from_matrix(np.stack([x_b, y_b, z_b], axis=-1))
 
-    def _camera_attitude(self, q_body: FloatArray) -> FloatArray:
+    def _camera_attitude(self, q_body: FloatArray, taus: FloatArray) -> FloatArray:
         """The camera board's FRD axes -> NED: the geotagger's camera rule (`icgt.pose.camera_quaternion`) with
-        the mounting in FRD camera axes (the optical frame is `Q_OPTICAL_TO_FRD` on top)."""
+        the mounting in FRD camera axes (the optical frame is `Q_OPTICAL_TO_FRD` on top); on a gimbal, the
+        gimbal's attitude (`gimbal_ned`) times the mounting on it."""
+        if self.scenario.camera.gimbal is not None:
+            return np.asarray(q_multiply(self.gimbal_ned(taus), self.q_mount))
         return camera_quaternion(q_body, self.q_mount, gimbal_stabilised=self.scenario.camera.stabilised)
+
+    def _body_at(self, taus: FloatArray) -> FloatArray:
+        if self.survey is not None:
+            return np.asarray(self.survey.state(taus).q_body_ned)
+        return self._body_attitude(self._kinematics(taus)[2])
+
+    def gimbal_ned(self, tau_s: FloatArray | float) -> FloatArray:
+        """The gimbal's device frame (x along the camera's pointing) -> NED: its roll and pitch held against the
+        horizon (the pitch nodding by ``pitch_sweep_deg``), its yaw the body's ``yaw_lag_s`` earlier (follow
+        mode). (..., 4)."""
+        g = self.scenario.camera.gimbal
+        assert g is not None
+        tau = np.atleast_1d(np.asarray(tau_s, dtype=np.float64))
+        _, _, yaw = q_to_euler_zyx(self._body_at(tau - g.yaw_lag_s))
+        roll = np.full_like(tau, math.radians(g.roll_deg))
+        sweep = g.pitch_sweep_deg * np.sin(2.0 * math.pi * tau / g.pitch_sweep_period_s)
+        pitch = np.radians(g.pitch_deg + sweep)
+        return np.asarray(q_from_euler_zyx(roll, pitch, yaw))
+
+    def gimbal_vehicle_frame(self, tau_s: float) -> FloatArray:
+        """What the gimbal reports (GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME): its attitude with the yaw from the
+        vehicle's heading at ``tau_s`` (q_earth = q(yaw_vehicle) q_vehicle, as common.xml defines it)."""
+        tau = np.array([float(tau_s)])
+        _, _, yaw_body = q_to_euler_zyx(self._body_at(tau))
+        back = q_from_euler_zyx(np.zeros(1), np.zeros(1), -yaw_body)
+        out: FloatArray = np.asarray(q_multiply(back, self.gimbal_ned(tau)), dtype=float)[0]
+        return out
 
     def state(self, tau_s: FloatArray | float) -> TruthState:
         """The true state at each scenario time in tau_s (1-D array or scalar -> arrays of N rows)."""
@@ -372,7 +404,7 @@ class Trajectory:
         else:
             pos, vel, acc = self._kinematics(taus)
             q_b = _align_signs(self._body_attitude(acc), n)
-        q_c = _align_signs(self._camera_attitude(q_b), n)
+        q_c = _align_signs(self._camera_attitude(q_b, taus), n)
         lever_enu = ned_to_enu(q_rotate(q_b, self.lever_arm_body))
         cam_pos = pos + lever_enu
         sl_m, sl_0, sl_p = slice(0, n), slice(n, 2 * n), slice(2 * n, 3 * n)

@@ -38,6 +38,10 @@ def add_map_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--position-sigma-m", type=float, default=POSITION_SIGMA_M, help="1-sigma camera position error [m]")
     p.add_argument("--attitude-sigma-deg", type=float, default=ATTITUDE_SIGMA_DEG, help="1-sigma attitude error [deg]")
     p.add_argument("--range-sigma-m", type=float, default=RANGE_SIGMA_M, help="1-sigma LiDAR range error [m]")
+    p.add_argument("--detector-recall", type=float, default=0.85,
+                   help="the detector's per-image recall, for the multi-view consensus (default 0.85)")  # fmt: skip
+    p.add_argument("--lookalike-rate", type=float, default=0.25,
+                   help="how often it reports a look-alike (joint, stain) in a view (default 0.25)")  # fmt: skip
     p.add_argument("--min-tolerance-mm", type=float, default=10.0, help="smallest merge distance [mm]")
     p.add_argument("--cache-mb", type=float, default=512.0, help="decoded-image cache of the mosaic [MB]")
     p.add_argument("--recompute-lookahead-s", type=float, metavar="S",

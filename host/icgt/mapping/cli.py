@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import shapely
 from PIL import Image
 
 from icgt.export.cli import (
@@ -35,6 +36,7 @@ from icgt.geometry import (
 )
 from icgt.geotag.record import POOR_POSE_FLAGS, FrameRecord
 from icgt.mapping import MappingError
+from icgt.mapping.consensus import Consensus, View
 from icgt.mapping.detections import read_detections
 from icgt.mapping.geojson import face_frame_json, features_face, features_wgs84, write_json
 from icgt.mapping.merge import build_instances
@@ -191,6 +193,7 @@ def run_map(
     trust_flagged: bool = False,
     mosaic_format: str = "png",
     lookahead_s: float | None = None,
+    consensus: Consensus = Consensus(),  # noqa: B008 (frozen)
 ) -> MapResult:
     if mosaic_format not in ("png", "tif"):
         raise MappingError(f"mosaic format must be png or tif, not {mosaic_format!r}")
@@ -229,7 +232,10 @@ def run_map(
         placed.append(p)
     for d, why in unplaced:
         ses.problems.add(d.image, None, "error", "detection_unplaced", f"{d.source}: {why}", "map")
-    instances = build_instances(placed, ses.face, errors.position_m * 1000.0, min_tolerance_mm=min_tolerance_mm)
+    instances = build_instances(
+        placed, ses.face, errors.position_m * 1000.0, min_tolerance_mm=min_tolerance_mm, views=views(ses),
+        consensus=consensus,
+    )  # fmt: skip
     write_json(out_dir / "defects.geojson", features_wgs84(instances, ses.origin, ses.geoid_separation_m))
     write_json(out_dir / "defects_face.geojson", features_face(instances, ses.face, ses.origin))
     _write_detections_csv(out_dir / "detections.csv", dets, placed, unplaced, instances)
@@ -247,6 +253,11 @@ def run_map(
         "detections_placed": len(placed),
         "detections_unplaced": len(unplaced),
         "instances": {k: sum(1 for i in instances if i.kind == k) for k in sorted({i.kind for i in instances})},
+        "confirmed": {
+            k: sum(1 for i in instances if i.kind == k and i.status == "confirmed")
+            for k in sorted({i.kind for i in instances})
+        },
+        "consensus": {**dataclasses.asdict(consensus), "threshold": round(consensus.threshold, 4)},
         "errors_1sigma": dataclasses.asdict(errors),
         "mosaic": None if mosaic is None else {
             "file": mosaic.path.name, "width_px": mosaic.width_px, "height_px": mosaic.height_px,
@@ -257,6 +268,18 @@ def run_map(
     }  # fmt: skip
     write_json(out_dir / "map.json", summary)
     return MapResult(out_dir, dets, placed, instances, unplaced, mosaic, ses)
+
+
+def views(ses: Session) -> list[View]:
+    """Every image with a trusted pose and its footprint on the face (for the consensus)."""
+    out = []
+    for name, (_, rec) in ses.images.items():
+        sol = ses.solutions.get(rec.frame_seq)
+        if sol is None or sol.footprint is None:
+            continue
+        ring = shapely.Polygon(ses.face.to_face(sol.footprint.enu))
+        out.append(View(name, ring if ring.is_valid else shapely.make_valid(ring)))
+    return out
 
 
 def mosaic_images(ses: Session) -> list[MosaicImage]:
@@ -326,11 +349,14 @@ def cmd_map(args: argparse.Namespace) -> int:
         mm_per_px=None if args.no_mosaic else args.mm_per_px, extent=_extent(args.extent),
         min_tolerance_mm=args.min_tolerance_mm, cache_mb=args.cache_mb, trust_flagged=args.trust_flagged_poses,
         mosaic_format=args.mosaic_format, lookahead_s=args.recompute_lookahead_s,
+        consensus=Consensus(recall=args.detector_recall, lookalike_rate=args.lookalike_rate),
     )  # fmt: skip
     kinds = ", ".join(f"{n} {k}" for k, n in sorted(_count(result.instances).items())) or "none"
+    doubtful = sum(i.status != "confirmed" for i in result.instances)
     print(
         f"{len(result.detections)} detections in {len(result.session.images)} images -> {len(result.instances)} "
-        f"defects ({kinds}); {len(result.unplaced)} detections not placed (problems.csv)"
+        f"defects ({kinds}; {doubtful} doubtful: seen by too few of the images that could see them); "
+        f"{len(result.unplaced)} detections not placed (problems.csv)"
     )
     if result.mosaic is not None:
         m = result.mosaic

@@ -80,6 +80,14 @@ class Instance:
     members: list[Placed] = field(default_factory=list)
     truncated: bool = False
     """Every contributing detection touched its image border (the defect may be larger)."""
+    width_spread_mm: float | None = None
+    """The spread of the images' widths (1.4826 x their median absolute deviation) [mm]."""
+    n_seen: int = 0
+    """How many images reported it where it was fused (icgt.mapping.consensus); 0: not asked."""
+    n_could: int = 0
+    """How many images could have seen it (icgt.mapping.consensus); 0: not asked."""
+    status: str = "confirmed"
+    """confirmed, or doubtful: too few of the images that could see it reported it (consensus)."""
 
     @property
     def images(self) -> list[str]:

@@ -240,7 +240,7 @@ def flood_offline_us(tmp: Path, n: int = 30_000) -> float:
     rec = Recorder(RecorderConfig())
     rec.mcap = McapRecorder(tmp)
     rec._register_topics()
-    link = MavlinkLink(LinkConfig(url="udpin:127.0.0.1:0", decode_systems=rec._expanded_systems))
+    link = MavlinkLink(LinkConfig(url="udpin:127.0.0.1:0", decode_systems=rec.mavlink_input.expanded_systems))
     put = rec._inbox.append
     try:  # as the recorder subscribes: other systems' frames in batches (a revision without them: one each)
         link.subscribe(lambda r: put((_MAVLINK, r, r.rx_ns)), undecoded=lambda b: put((_MAVLINK, b, b.rx_ns)))

@@ -15,7 +15,7 @@ from icgt.mavlink.link import MavlinkMessage
 from icgt.recorder import Recorder
 from icgt.recorder.config import RecorderConfig
 from icgt.recorder.log_file import register_channels
-from icgt.recorder.recorder import _OTHER_SYSTEMS_BATCH
+from icgt.recorder.mavlink_input import OTHER_SYSTEMS_BATCH
 from icgt.recording import McapRecorder, layout
 from icgt.sync import Synchroniser
 
@@ -55,11 +55,11 @@ def test_batches_give_the_records_and_counts_of_one_message_per_frame(tmp_path: 
 
     def one_each(rec: Recorder) -> None:
         for frame, rx in batch.undecoded_frames():
-            rec._on_mavlink_message(MavlinkMessage(frame, rx))
+            rec.mavlink_input.on_message(MavlinkMessage(frame, rx))
 
     def in_batches(rec: Recorder) -> None:
         for i in range(0, len(frames), 100):  # as drains of the socket would cut them
-            rec._on_mavlink_message(UndecodedBatch(frames[i : i + 100]))
+            rec.mavlink_input.on_message(UndecodedBatch(frames[i : i + 100]))
 
     per_frame, counts_each = _record(tmp_path, "each", one_each)
     bulk, counts_bulk = _record(tmp_path, "bulk", in_batches)
@@ -70,7 +70,7 @@ def test_batches_give_the_records_and_counts_of_one_message_per_frame(tmp_path: 
     logged = [f for r in bulk for f in r["frames"]]
     assert logged == [f for r in per_frame for f in r["frames"]]
     assert len(logged) == 1234 and [f["host_rx_ns"] for f in logged] == [f[4] for f in frames]
-    assert max(len(r["frames"]) for r in bulk) <= _OTHER_SYSTEMS_BATCH
+    assert max(len(r["frames"]) for r in bulk) <= OTHER_SYSTEMS_BATCH
 
     # the recompute counts the logged frames back to the live counts, without decoding them
     sync = Synchroniser()
@@ -87,7 +87,7 @@ def test_batches_give_the_records_and_counts_of_one_message_per_frame(tmp_path: 
 def test_recompute_decodes_a_logged_frame_of_the_autopilots_system(tmp_path: Path) -> None:
     """Recomputing with another autopilot_system: that system's frames in /mavlink/other_systems are fed whole."""
     frames = _foreign_frames(6)
-    records, _ = _record(tmp_path, "one", lambda rec: rec._on_mavlink_message(UndecodedBatch(frames)))
+    records, _ = _record(tmp_path, "one", lambda rec: rec.mavlink_input.on_message(UndecodedBatch(frames)))
     sync = Synchroniser()
     sync.autopilot.system = 40  # the sender of frames 0 and 3 (ATTITUDE both)
     whole: list[tuple[str, int, int]] = []

@@ -177,6 +177,14 @@ class RecorderLog:
         except RecordingError as exc:
             self._on_fatal(exc)
 
+    def link_event(self, link: str, kind: str, detail: str, host_ns: int, count: int = 0, outage_ns: int = 0) -> None:
+        """One event on /icgt/link_events (``link``: "device", "mavlink" or "sync")."""
+        self.write(
+            layout.LINK_EVENTS,
+            {"link": link, "kind": kind, "detail": detail, "count": count, "outage_ns": outage_ns, "host_ns": host_ns},
+            host_ns,
+        )
+
     @contextlib.contextmanager
     def batch(self) -> Iterator[None]:
         """This thread's writes until the end of the block are handed to the file together at its end."""

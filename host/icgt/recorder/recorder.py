@@ -43,33 +43,23 @@ from icgt.device import (
     DeviceAbsentError,
     DeviceLink,
     DeviceLinkError,
-    DeviceLinkEvent,
-    TimeSyncSample,
 )
 from icgt.device.limits import BoardLimits, LimitError, for_board
 from icgt.errors import IcgtError
 from icgt.geotag import FrameRecord
 from icgt.mavlink.camera import CameraComponent, CommandResult, HandlerResult
 from icgt.mavlink.frames import UndecodedBatch
-from icgt.mavlink.link import LinkConfig, MavlinkEvent, MavlinkLink, MavlinkMessage, StreamRate
+from icgt.mavlink.link import LinkConfig, MavlinkLink, MavlinkMessage, StreamRate
 from icgt.mavlink.signing import load_signing_key
 from icgt.protocol import Received as DeviceReceived
-from icgt.protocol.messages import (
-    DeviceState,
-    FrameFlags,
-    Hello,
-    Log,
-    LogLevel,
-    SetTime,
-    Status,
-    StopCapture,
-)
+from icgt.protocol.messages import Hello, SetTime, Status, StopCapture
 from icgt.recorder import capture, topics
 from icgt.recorder.camera_link import CameraImages, build_camera
 from icgt.recorder.camera_settings import capture_settings
 from icgt.recorder.config import CaptureSection, RecorderConfig
-from icgt.recorder.device_stop import SelfStopWatch
+from icgt.recorder.device_input import DeviceInput
 from icgt.recorder.log_file import RecorderLog, board_name, device_metadata, start_metadata
+from icgt.recorder.mavlink_input import MavlinkInput
 from icgt.recorder.native_heap import NativeHeapTrimmer, limit_malloc_arenas
 from icgt.recorder.resync import TakeOver, take_over
 from icgt.recorder.step_schedule import StepSchedule
@@ -77,18 +67,10 @@ from icgt.recorder.tuning import InterpreterTuning
 from icgt.recorder.worker_wake import WorkerWake
 from icgt.recording import McapRecorder, RecordingError, layout
 from icgt.recording.views import FoxgloveViews
-from icgt.sync import SyncConfig, SyncEvent, Synchroniser
+from icgt.sync import SyncConfig, Synchroniser
 
 log = logging.getLogger("icgt.recorder")
 
-_RETRANSMIT = int(FrameFlags.RETRANSMIT)
-_DEVICE_LOG_LEVELS: dict[int, int] = {
-    LogLevel.DEBUG: logging.DEBUG,
-    LogLevel.INFO: logging.INFO,
-    LogLevel.WARNING: logging.WARNING,
-    LogLevel.ERROR: logging.ERROR,
-    LogLevel.FATAL: logging.CRITICAL,
-}
 _LIDAR_MODELS = {"none": 0, "v3": 1, "v3hp": 2}
 
 
@@ -119,7 +101,6 @@ class RecorderStatus:
 _DEVICE, _EXCHANGE, _DEVICE_EVENT, _MAVLINK, _MAVLINK_EVENT, _TIMESYNC_SENT = range(6)
 _DRAIN_MAX = 5000  # inputs handled before the worker polls again (bounds frame latency under a flood)
 _MAVLINK_SERVICE_PERIOD_S = 0.05  # a serial/TCP MAVLink link's TIMESYNC / rate-request steps [s]
-_OTHER_SYSTEMS_BATCH = 500  # other systems' MAVLink frames per /mavlink/other_systems record, at most
 # The device reader sleeps this long between reads [s] when no stamp depends on it (DeviceLink batch_s: not
 # while a reply is awaited) until the worker pumps the link, and again after: one wake-up per pause, not per USB
 # frame. (A UDP MAVLink link is read by the worker; a serial or TCP one's reader reads each chunk as it comes.)
@@ -157,12 +138,12 @@ class Recorder:
         self.views = FoxgloveViews(
             config.camera, self._write, self._log_time, lambda: self.sync.geotagger.origin, config.mavlink.system_id
         )
-        # MAVLink systems whose messages are logged field by field: the vehicle and its ground stations.
-        self._expanded_systems = frozenset({config.mavlink.system_id, *config.mavlink.ground_station_systems})
-        self._other_systems: list[dict[str, Any]] = []  # their raw frames, written once per inbox drain
         key_file = config.mavlink.signing_key_file  # read now: a bad key file stops us before any contact
         self._signing_key = load_signing_key(key_file) if key_file is not None else None
         self._images = CameraImages(config.mavlink.system_id)
+        expanded = frozenset({config.mavlink.system_id, *config.mavlink.ground_station_systems})
+        self.mavlink_input = MavlinkInput(self.sync, self.log_file, self.views, self._images, expanded)
+        self.device_input = DeviceInput(self.sync, self.log_file, self.views, self._device_stopped_itself)
         # Filled by the reader threads (deque.append is atomic), emptied by the worker only.
         self._inbox: deque[tuple[int, Any, int]] = deque()
         self.device: DeviceLink | None = None
@@ -171,7 +152,6 @@ class Recorder:
         self.control: ControlServer | None = None
         self.hello: Hello | None = None
         self.frames = 0
-        self.exposures = 0
         self._capturing = False
         self._capture_interval_s: float | None = None  # of the capture running (what an outage took)
         self._cadence_hint = (0, 0)  # (captures started, the last one's interval [ns]), for the worker
@@ -180,7 +160,6 @@ class Recorder:
         self._nudge = WorkerWake()  # wakes the worker before its scheduled step (a capture started, stop, input)
         self._worker: threading.Thread | None = None
         self._worker_lock = threading.Lock()  # the worker's step, and stop()'s final drain
-        self._registered: set[str] = set()
         self._next_clock_log_ns = 0
         self._heap_trimmer = NativeHeapTrimmer()  # thread arenas' free pages back to the system (soak)
         self._snapshot: dict[str, Any] = {}
@@ -192,11 +171,15 @@ class Recorder:
         self._capture = config.capture  # the trigger settings in force (a ground station may change them)
         self._tuning = InterpreterTuning()
         self.recording_id = secrets.randbits(32) or 1  # named to the device in HOST_RECEIVED (nonzero)
-        self._self_stops = SelfStopWatch()
 
     @property
     def last_status(self) -> Status | None:
         return self.sync.last_status
+
+    @property
+    def exposures(self) -> int:
+        """Exposures the device reported in this recording."""
+        return self.device_input.exposures
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> Path:
@@ -335,7 +318,7 @@ class Recorder:
             "icgt recover-device --flight THIS_LOG fetches what its history still holds"
         )
         log.error("%s", detail)
-        self._write_event("device", "unreachable_at_end", detail, now, taken, outage_ns)
+        self.log_file.link_event("device", "unreachable_at_end", detail, now, taken, outage_ns)
         self.failure = self.failure or StopNotDeliveredError(
             f"the capture stop could not be delivered to the device ({exc}): it may still be capturing; "
             f"{known} are not in the log"
@@ -451,67 +434,11 @@ class Recorder:
         if received.message.NAME == "EXPOSURE" and threading.get_ident() != self._worker_ident:
             self._nudge.set()
 
-    def _on_device_message(self, received: DeviceReceived, host_rx_ns: int) -> None:
-        msg = received.message
-        if self.mcap is not None:
-            data = topics.device_payload_json(msg, received.seq, received.flags, host_rx_ns)
-            self._write_encoded(topics.device_topic(msg.NAME), data, host_rx_ns)
-        self.sync.on_device(msg, host_rx_ns, retransmitted=bool(received.flags & _RETRANSMIT))
-        if msg.NAME == "EXPOSURE":
-            self.exposures += 1
-        elif isinstance(msg, DeviceState):
-            self._on_device_state(msg, host_rx_ns)
-        elif isinstance(msg, Log):
-            self.views.on_device_log(msg.level, msg.text, host_rx_ns)
-            log.log(_DEVICE_LOG_LEVELS.get(msg.level, logging.INFO), "device: %s", msg.text)
-
-    def _on_device_state(self, state: DeviceState, host_rx_ns: int) -> None:
-        """A DEVICE_STATE saying the device stopped a capture by itself (its host went silent): said once."""
-        news = self._self_stops.observe(state)
-        if news is None:
-            return
-        stop, before = news
-        if before:  # a capture of an earlier flight, before this recorder started
-            log.warning(
-                "%s, before this recording (the last host's log: recording id 0x%08X); what that flight's "
-                "outage left in the device's history: icgt recover-device --flight LOG",
-                stop.detail,
-                stop.recording_id,
-            )
-            return
-        self._capturing = False  # nothing left to stop at the end
+    def _device_stopped_itself(self) -> None:
+        """The device stopped this recording's capture by itself (its host went silent): nothing left to stop."""
+        self._capturing = False
         if self.camera is not None:
             self.camera.set_capturing(False)
-        log.warning("%s", stop.detail)
-        self._write_event("device", "device_stopped_itself", stop.detail, host_rx_ns, stop.triggers_fired)
-
-    def _on_device_link_event(self, event: DeviceLinkEvent) -> None:
-        level = logging.INFO if event.kind == "connected" else logging.WARNING
-        log.log(level, "device link: %s", event.detail)
-        self._write_event("device", event.kind, event.detail, event.host_ns, event.count, event.outage_ns)
-
-    def _on_time_sync(self, sample: TimeSyncSample) -> None:
-        status = self.sync.on_exchange(sample.host_tx_ns, sample.device_rx_us, sample.device_tx_us, sample.host_rx_ns)
-        # Written after it was fed only because the status is part of the record; the recompute refits
-        # from these records in file order, which is the order they were fed.
-        self._write(
-            layout.CLOCK_DEVICE_EXCHANGES,
-            {
-                "host_tx_ns": sample.host_tx_ns,
-                "device_rx_us": sample.device_rx_us,
-                "device_tx_us": sample.device_tx_us,
-                "host_rx_ns": sample.host_rx_ns,
-                "status": status.value,
-            },
-            sample.host_rx_ns,
-        )
-
-    def _write_event(self, link: str, kind: str, detail: str, host_ns: int, count: int = 0, outage_ns: int = 0) -> None:
-        self._write(
-            layout.LINK_EVENTS,
-            {"link": link, "kind": kind, "detail": detail, "count": count, "outage_ns": outage_ns, "host_ns": host_ns},
-            host_ns,
-        )
 
     # ------------------------------------------------------------------ capture commands
     def start_capture(self, interval_s: float | None = None, count: int = 0) -> None:
@@ -583,7 +510,7 @@ class Recorder:
                 url=cfg.url,
                 system_id=cfg.system_id,
                 stream_rates=rates,
-                decode_systems=self._expanded_systems,
+                decode_systems=self.mavlink_input.expanded_systems,
                 signing_key=self._signing_key,
                 udp_receive_buffer_bytes=cfg.udp_receive_buffer_bytes,
                 service_period_s=_MAVLINK_SERVICE_PERIOD_S,
@@ -593,6 +520,7 @@ class Recorder:
             on_timesync_sent=lambda tx_ns: self._inbox.append((_TIMESYNC_SENT, tx_ns, tx_ns)),
         )
         self.mavlink.subscribe(self._mavlink_received, undecoded=self._mavlink_received)  # others: in bulk
+        self.mavlink_input.link = self.mavlink
         self.mavlink.start()
         settings = capture_settings(
             lambda: self._capture,
@@ -609,68 +537,9 @@ class Recorder:
         self._inbox.append((_MAVLINK, rec, rec.rx_ns))
         self._nudge.thread_input()
 
-    def _on_mavlink_message(self, rec: MavlinkMessage | UndecodedBatch) -> None:
-        if isinstance(rec, UndecodedBatch):  # other systems' frames (all of a flood): logged and counted in bulk
-            self._other_systems += topics.mavlink_raw_payloads(rec)
-            self.sync.on_other_systems(rec.type_counts())
-            if len(self._other_systems) >= _OTHER_SYSTEMS_BATCH:
-                self._flush_other_systems()
-            return
-        name = rec.type
-        if name == "BAD_DATA":
-            return
-        if rec.src_system not in self._expanded_systems:
-            # Other vehicles and clients on a shared network: kept raw, batched into one record per drain
-            # of the inbox (a flood of them must not cost a JSON record each); the synchroniser still sees
-            # each one (and ignores it), in order.
-            self._other_systems.append(topics.mavlink_raw_payload(rec.msg, rec.rx_ns))
-            self.sync.on_mavlink(rec.msg, rec.rx_ns)
-            if len(self._other_systems) >= _OTHER_SYSTEMS_BATCH:
-                self._flush_other_systems()
-            return
-        if self._other_systems:
-            self._flush_other_systems()
-        topic = topics.mavlink_topic(name)
-        if topic not in self._registered and self.mcap is not None:
-            with contextlib.suppress(RecordingError):
-                self.mcap.register_json(topic, f"mavlink.{name}", topics.mavlink_schema(rec.msg))
-            self._registered.add(topic)
-        self._write(topic, topics.mavlink_payload(rec.msg, rec.rx_ns), rec.rx_ns)
-        verdict = self.sync.on_mavlink(rec.msg, rec.rx_ns)
-        if name == "COMMAND_ACK" and verdict.believed and self.mavlink is not None:
-            self.mavlink.autopilot_answered(rec.msg, rec.rx_ns)  # a second sender's ACK answers nothing
-        self._images.on_mavlink(rec.msg, rec.src_system, rec.rx_ns)
-        self.views.on_mavlink(rec.msg, rec.rx_ns)
-
-    def _flush_other_systems(self) -> None:
-        frames, self._other_systems = self._other_systems, []
-        for i in range(0, len(frames), _OTHER_SYSTEMS_BATCH):
-            batch = frames[i : i + _OTHER_SYSTEMS_BATCH]
-            self._write(layout.MAVLINK_OTHER_SYSTEMS, {"frames": batch}, batch[0]["host_rx_ns"])
-
-    def _on_timesync_sent(self, tx_ns: int) -> None:
-        self._write(layout.CLOCK_AUTOPILOT_REQUESTS, {"host_tx_ns": tx_ns}, tx_ns)
-        self.sync.on_timesync_request(tx_ns)
-
-    def _on_mavlink_event(self, event: MavlinkEvent) -> None:
-        # MavlinkLink logs the event itself (icgt.mavlink.link, also on /icgt/log); here it only goes on the topic.
-        self._write_event("mavlink", event.kind.value, event.detail, event.host_ns, event.count)
-
     def _take_sync_events(self) -> None:
         for event in self.sync.take_events():
-            self._on_sync_event(event)
-
-    def _on_sync_event(self, event: SyncEvent) -> None:
-        """A synchroniser event on /icgt/link_events, once. The autopilot's presence (seen / lost / back /
-        rebooted: the one state machine, the synchroniser's) goes under link "mavlink", and to the MAVLink link as
-        a hint (its stream rates asked again, TIMESYNC fast again); the rest under "sync"."""
-        if event.presence is None:
-            self._write_event("sync", event.kind, event.detail, event.host_ns, outage_ns=event.outage_ns)
-            return
-        self._write_event("mavlink", event.kind, event.detail, event.host_ns, outage_ns=event.outage_ns)
-        if self.mavlink is not None:
-            ap = self.sync.autopilot
-            self.mavlink.autopilot_hint(event.presence, ap.system, ap.component, event.host_ns)
+            self.mavlink_input.on_sync_event(event)
 
     # ------------------------------------------------------------------ frames
     def _emit(self, records: list[FrameRecord]) -> None:
@@ -760,24 +629,24 @@ class Recorder:
         while inbox and (limit is None or n < limit):
             self._handle(inbox.popleft())
             n += 1
-        if self._other_systems:
-            self._flush_other_systems()
+        if self.mavlink_input.holds_other_systems:
+            self.mavlink_input.flush_other_systems()
         return read
 
     def _handle(self, item: tuple[int, Any, int]) -> None:
         kind, payload, rx_ns = item
         if kind == _DEVICE:
-            self._on_device_message(payload, rx_ns)
+            self.device_input.on_message(payload, rx_ns)
         elif kind == _MAVLINK:
-            self._on_mavlink_message(payload)
+            self.mavlink_input.on_message(payload)
         elif kind == _EXCHANGE:
-            self._on_time_sync(payload)
+            self.device_input.on_time_sync(payload)
         elif kind == _TIMESYNC_SENT:
-            self._on_timesync_sent(payload)
+            self.mavlink_input.on_timesync_sent(payload)
         elif kind == _DEVICE_EVENT:
-            self._on_device_link_event(payload)
+            self.device_input.on_link_event(payload)
         elif kind == _MAVLINK_EVENT:
-            self._on_mavlink_event(payload)
+            self.mavlink_input.on_event(payload)
 
     def _work_once(self, now: int) -> None:
         self._emit(self.sync.poll(now))

@@ -15,10 +15,9 @@ method (each detection its own defect, on its own image's plane; eqs 5-7):
     0.85, pieces, gaps, end and width noise, random false positives, look-alikes reported at 0.25);
     seed 7 in the table, and the worst of `--seeds` seeds below it;
   - pixels: icgt.mapping.pixel_detector on the card rendered again at 1800 px wide (1.13 mm/px at the
-    2 m standoff, cached), COCO polygons. Cracks only (it detects no spalls). Every crack of the face
-    is at least 0.25 px wide at that GSD (0.3 mm), the rule for a crack to count as detectable (its
-    rendered contrast is then >= 13 % of the surface's grey: icgt.sim.surface.shade); no crack is
-    below it here.
+    2 m standoff, cached), COCO polygons. Cracks only (it detects no spalls). A crack narrower than
+    0.3 px at the GSD is under the detection limit (docs/damage-detectors.md); here only C3 (0.3 mm,
+    0.27 px) is, and it is scored all the same: all five cracks count.
 
 Then the bare face: the same flight over the face with its stains and joint and no defect, both
 detectors: confirmed defects (target 0) and what the per-image method reports.

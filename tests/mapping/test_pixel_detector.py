@@ -82,3 +82,44 @@ def _near_border(p: np.ndarray, w: int = 1800, h: int = 1200, m: float = 5.0) ->
     return bool(
         (p[:, 0] < m).any() or (p[:, 1] < m).any() or (p[:, 0] > w - 1 - m).any() or (p[:, 1] > h - 1 - m).any()
     )
+
+
+PIXEL_E2E_WIDTH_PX = 900
+"""2.26 mm/px at the 2 m standoff: half the benchmark's resolution, to keep the test to ~40 s of CPU."""
+DETECTABLE_PX = 0.3
+"""A crack narrower than this many pixels of the GSD is under the detection limit (docs/damage-detectors.md)."""
+
+
+def test_map_from_pixels_confirms_the_detectable_cracks_and_nothing_else(
+    damage_flight: DamageFlight, tmp_path: Path
+) -> None:
+    """The whole card rendered again, the pixel detector's COCO into `icgt map`: the projected path's answer."""
+    from icgt.mapping.cli import run_map
+    from icgt.mapping.model import CRACK, midpoint
+    from icgt.mapping.pixel_detector import detect_cards
+    from icgt.mapping.place import Errors
+    from icgt.sim.map_truth import MappedItem, compare, load_truth, p50_p95
+    from icgt.sim.render import rerender_card
+
+    from .conftest import LOOKAHEAD_S
+
+    sc = with_lookalikes(damage_flight.scenario, render_width_px=PIXEL_E2E_WIDTH_PX)
+    card = tmp_path / "card"
+    rerender_card(sc, damage_flight.exposures, damage_flight.flight.card, card)
+    detect_cards(sorted(card.glob("*.JPG")), tmp_path / "coco.json", PixelDetector(exclude=(TAG_BOX_PX,)))
+    res = run_map(
+        damage_flight.flight.mcap, card, [tmp_path / "coco.json"], tmp_path / "map",
+        calibration=damage_flight.calibration, errors=Errors(position_m=0.015), mm_per_px=None,
+        lookahead_s=LOOKAHEAD_S,
+    )  # fmt: skip
+    gsd_mm = 2.0 * 35.6 / 35.0 / PIXEL_E2E_WIDTH_PX * 1000.0  # standoff x sensor / focal / width
+    truth = [t for t in load_truth(damage_flight.truth, res.session.origin) if t.kind == CRACK]
+    detectable = {t.id for t in truth if (t.width_mm or 0.0) >= DETECTABLE_PX * gsd_mm}
+    assert len(detectable) >= 3
+    confirmed = [i for i in res.instances if i.status == "confirmed"]
+    cmp = compare(truth, [MappedItem(i.kind, midpoint(i.enu), i.length_mm, None) for i in confirmed])
+    # precision: every confirmed crack is a true one (one under the limit may be found: no error)
+    assert cmp.false == 0 and cmp.duplicates == 0, (cmp.false, cmp.duplicates)
+    # recall over the detectable cracks
+    assert all(cmp.assignment[t] for t in detectable), (detectable, cmp.missed)
+    assert p50_p95(cmp.length_err_pct)[1] <= 10.0, cmp.length_err_pct

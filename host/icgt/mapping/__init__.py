@@ -4,8 +4,10 @@
 `icgt.read`, pairs the card's images with its frames (icgt.ingest.match), reads the detector's
 output (detections.py), places every detection on the structure's surface with
 `icgt.geometry.Projector` (place.py), merges the detections of one defect seen in several
-overlapping images into one instance (merge.py), and writes GeoJSON (geojson.py) and a
-direct-projection mosaic of the face (mosaic.py). `icgt tiles` (tiles.py) cuts the images into the
+overlapping images into one instance (merge.py), checks each by multi-view consensus (consensus.py:
+confirmed or doubtful, with how many images saw it and could have), and writes GeoJSON (geojson.py)
+and a direct-projection mosaic of the face (mosaic.py). pixel_detector.py is a classical crack
+detector on the card's JPEGs that writes COCO for it. `icgt tiles` (tiles.py) cuts the images into the
 paper's 512 x 512 detector tiles with each tile's place on the face, so tile detections map back.
 
 Conventions and units:

@@ -29,6 +29,7 @@ from icgt.catalog import CatalogError
 from icgt.catalog.schema import SCHEMA_VERSION, SCHEMAS, file_metadata, frame_fields
 from icgt.geotag.record import POOR_POSE_FLAGS, FrameFlag, FrameRecord
 from icgt.recording import layout
+from icgt.recording.identity import file_sha256, flight_id
 
 log = logging.getLogger(__name__)
 
@@ -47,8 +48,7 @@ class FlightTables:
 
 def sha256_file(path: Path) -> str:
     try:
-        with path.open("rb") as f:
-            return hashlib.file_digest(f, "sha256").hexdigest()
+        return file_sha256(path)
     except OSError as exc:
         raise CatalogError(f"cannot read {path}: {exc.strerror or exc}") from None
 
@@ -73,20 +73,6 @@ def _files_hash(paths: Sequence[Path]) -> str:
         for q in files:
             h.update(q.name.encode() + b"\0" + sha256_file(q).encode() + b"\n")
     return h.hexdigest()
-
-
-def flight_id(metadata: dict[str, dict[str, str]], log_sha256: str) -> tuple[str, str | None, str]:
-    """(flight id, recording id, kind): the device's serial number and the recording id the recorder named to
-    it (metadata icgt.flight), so a re-geotagged or recovered copy of one flight has the same id; a log without
-    them is identified by its content."""
-    flight = metadata.get(layout.META_FLIGHT, {})
-    serial = metadata.get(layout.META_DEVICE, {}).get("serial_number")
-    rid = flight.get("recording_id")
-    kind = flight.get("kind", "recording")
-    if serial and rid:
-        ident = f"{serial}-{rid.removeprefix('0x').lower()}"
-        return (ident if kind == "recording" else f"{ident}-{kind}"), rid, kind
-    return f"log-{log_sha256[:16]}", rid, kind
 
 
 def _wkb(geoms: Sequence[Any]) -> tuple[list[bytes | None], list[dict[str, float] | None]]:

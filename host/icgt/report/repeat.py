@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from icgt.recording.identity import file_sha256, flight_id
 from icgt.report.summary import ReportError
 
 GEOJSON = "compare.geojson"
@@ -187,9 +188,11 @@ def section(rep: RepeatInspection, flight: str) -> tuple[str, str]:
 
 def recording_flight(recording: Any) -> str:
     """The recording's flight id, as `icgt catalog add` names it."""
-    from icgt.catalog.collect import flight_id, sha256_file
-
     ident, _rid, _kind = flight_id(recording.metadata, "")
     if ident.startswith("log-"):  # no serial or recording id: identified by its content
-        ident, _rid, _kind = flight_id(recording.metadata, sha256_file(Path(recording.path)))
+        try:
+            digest = file_sha256(Path(recording.path))
+        except OSError as exc:
+            raise ReportError(f"cannot read {recording.path}: {exc.strerror or exc}") from None
+        ident, _rid, _kind = flight_id(recording.metadata, digest)
     return ident

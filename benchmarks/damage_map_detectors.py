@@ -76,10 +76,11 @@ def main() -> int:
     from icgt.mapping.model import CRACK, midpoint
     from icgt.mapping.pixel_detector import PixelDetector, detect_cards
     from icgt.mapping.place import Errors
+    from icgt.sim.camera_card import rerender_card
     from icgt.sim.detector import SimDetection, detect_all, write_polylines
     from icgt.sim.detector_errors import detect_with_errors
     from icgt.sim.map_truth import MappedItem, TrueDefect, compare, geotag_errors_m, load_truth, p50_p95
-    from icgt.sim.render import TAG_BOX_PX, rerender_card
+    from icgt.sim.render import TAG_BOX_PX
     from icgt.sim.scenario import load_scenario
 
     base = _flight(args.regenerate)

@@ -98,8 +98,8 @@ def test_map_from_pixels_confirms_the_detectable_cracks_and_nothing_else(
     from icgt.mapping.model import CRACK, midpoint
     from icgt.mapping.pixel_detector import detect_cards
     from icgt.mapping.place import Errors
+    from icgt.sim.camera_card import rerender_card
     from icgt.sim.map_truth import MappedItem, compare, load_truth, p50_p95
-    from icgt.sim.render import rerender_card
 
     from .conftest import LOOKAHEAD_S
 

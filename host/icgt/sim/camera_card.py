@@ -114,3 +114,30 @@ def write_card(
             raise SimError(f"cannot write {path}: {exc.strerror}") from exc
         paths.append(path)
     return paths
+
+
+def rerender_card(scenario: Scenario, exposures: Sequence[ExposureTruth], card: Path, out: Path) -> list[Path]:
+    """The flown card's images rendered again from `scenario`'s surface (another face, another size).
+
+    Same file names, same EXIF (so `icgt map` matches them to the same frames), same frame tag; the
+    pixels are the face of `scenario` (e.g. with look-alikes painted on, or rendered finer) as each
+    exposure saw it. For benchmarks and tests: the flight need not be flown again.
+    """
+    from icgt.sim.render import render
+
+    surface = scenario.surface
+    if surface is None:
+        raise ValueError("a scenario without [surface] renders no face")
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for e in sorted(exposures, key=lambda x: x.frame_number):
+        name = file_name(scenario.camera.first_file_number + e.frame_number - 1)
+        src = card / name
+        if not src.is_file():
+            continue
+        with Image.open(src) as im:
+            exif = im.info.get("exif", b"")
+        img = _image(e.frame_number, render(scenario, surface, e))
+        img.save(out / name, format="JPEG", quality=90, exif=exif)
+        paths.append(out / name)
+    return paths

@@ -57,7 +57,7 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def _silent(tau: float) -> bool:
-    return SILENT[0] + HOLD_S < tau < SILENT[1]
+    return SILENT[0] + HOLD_S < tau < SILENT[1] - HOLD_S
 
 
 def _on_deck(camera_enu: np.ndarray, q: np.ndarray) -> np.ndarray:

@@ -63,8 +63,14 @@ def test_every_recovered_frame_is_ranged_as_the_live_ones_from_the_samples_or_it
     live = [f.range_error_m for f in flight.window(False) if f.true_range]
     assert live and all(e is not None for e in live)
     worst_live = max(e for e in live if e is not None)
-    assert not any("range_from_snapshot" in f.flags for f in flight.window(False)), "live frames have samples"
     back_s = UNPLUG_AT_S + UNPLUG_S
+    # Frames away from the outage's edges have their range samples: the snapshot never stands in. (A frame
+    # made just before the unplug can lose the samples after its mid with the cable, and one made while the
+    # link came back gets them only through RESEND: for those the snapshot is what it is for.)
+    untouched = [f for f in flight.window(False) if f.start_s < UNPLUG_AT_S - 1.0 or f.start_s > back_s + 3.0]
+    assert len(untouched) >= 40
+    snapped = [(f.image_index, round(f.start_s, 2)) for f in untouched if "range_from_snapshot" in f.flags]
+    assert not snapped, f"live frames away from the outage ranged from their snapshot: {snapped}"
     recovered = flight.window(True)
     for f in recovered:
         assert f.true_range

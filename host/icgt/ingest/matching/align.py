@@ -142,19 +142,22 @@ def _segments(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands
     lo_r = np.full(len(card), -1, dtype=np.int64)
     hi_r = np.full(len(card), -1, dtype=np.int64)
     if len(with_range):
-        r0, r1 = r0_all[with_range], r1_all[with_range]
-        lo_adj = np.maximum.accumulate(r0)
-        kept = lo_adj <= r1
-        extra = with_range[~kept].tolist()
-        ki = with_range[kept]
-        klo, khi = lo_adj[kept], r1[kept]
+        # The ranges are not clipped to the running maximum of the starts before them: that holds only if
+        # every earlier image is paired, and an earlier image may be an extra (another flight's, on a card
+        # whose two sessions interleave in time). Clipped, the true alignment of such a card was costed as if
+        # its images could not pair, and a wrong offset won (property test of issue 36). A segment ends where
+        # every later image's range starts past every earlier one's end (prefix maximum of the ends below
+        # the suffix minimum of the starts): segments then share no exposure, whatever is skipped.
+        ki = with_range
+        klo, khi = r0_all[ki], r1_all[ki]
         lo_r[ki], hi_r[ki] = klo, khi
         reach = np.maximum.accumulate(khi)
-        starts = np.flatnonzero(np.concatenate([[True], klo[1:] > reach[:-1]])) if len(ki) else np.zeros(0, int)
+        floor = np.minimum.accumulate(klo[::-1])[::-1]
+        starts = np.flatnonzero(np.concatenate([[True], floor[1:] > reach[:-1]]))
         ends = np.concatenate([starts[1:], [len(ki)]]).astype(np.int64)
-        ki_l, klo_l, reach_l = ki.tolist(), klo.tolist(), reach.tolist()
+        ki_l, floor_l, reach_l = ki.tolist(), floor.tolist(), reach.tolist()
         for s0, s1 in zip(starts.tolist(), ends.tolist(), strict=True):
-            segs.append((ki_l[s0:s1], klo_l[s0], reach_l[s1 - 1]))
+            segs.append((ki_l[s0:s1], floor_l[s0], reach_l[s1 - 1]))
     ranges = Ranges(lo_r, hi_r)
     return cands, ranges, segs, extra, flat
 

@@ -283,3 +283,16 @@ def test_an_earlier_flights_images_do_not_close_the_ranges_of_the_logs_own() -> 
     c = dict(flight=flight, cut=(0.0, 1.0), other=other, other_after=False, shift_s=60.0, step_s=math.nan, foreign=None)
     frames, images, truth = _composed(c)
     _assert_never_wrong_and_all_accounted(match_times(frames, images), frames, images, truth)
+
+
+def test_a_narrow_fit_of_coarse_times_is_seen_as_the_rival_of_a_looser_shift() -> None:
+    """A longer search's case (ICGT_MATCH_EXAMPLES=400): the log cut to its last half, 1 s EXIF and 1 s triggers.
+    The true offset fits every image only over a few hundredths of a second, which the judge's three points per
+    0.5 s bin missed; an offset 7.4 s away fitting more loosely was decided alone and 6 wrong pairs were made."""
+    for dt, shots, pause in ((1.0, 6, 1.5), (0.5, 9, 2.0)):  # the second: 9 wrong pairs, 6.5 s away
+        flight: dict[str, Any] = dict(seed=0, dt=dt, res=1.0, offset=0.0, drift=0.0, wired=True, passes=3)
+        flight |= dict(shots=shots, pause=pause, jitter=0.0005, p_miss=0.0, p_manual=0.0, p_untimed=0.0)
+        flight["test_shot"] = False
+        c = dict(flight=flight, cut=(0.5, 1.0), other=None, other_after=False, shift_s=60.0, step_s=0.0, foreign=None)
+        frames, images, truth = _composed(c)
+        _assert_never_wrong_and_all_accounted(match_times(frames, images), frames, images, truth)

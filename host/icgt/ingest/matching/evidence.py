@@ -264,7 +264,9 @@ def judge(card: Card, fr: Frames, reach_s: float, slack_s: float) -> Verdict | N
     # 0.5 s bin miss it, and a shifted offset that fits more loosely was decided without its rival (6 and 9
     # wrong pairs, property tests). The bins most voted for are also scanned at the tolerance's spacing: a fit
     # as wide as the tolerance is always sampled, and one narrower is sampled within a contradiction or two
-    # of it (which OFFSET_MARGIN counts as a rival).
+    # of it (which OFFSET_MARGIN counts as a rival). They only add rivals: the best, and whether the card holds
+    # the log at all, stay those of the three points per bin.
+    coarse = len(offsets)
     spacing = float(np.median(fr.tol)) + slack_s
     n_fine = math.ceil(q / spacing) if spacing > 0 else 0
     if n_fine > 3:
@@ -273,11 +275,14 @@ def judge(card: Card, fr: Frames, reach_s: float, slack_s: float) -> Verdict | N
     score, overlap = _scores(card, fr, offsets, slack_s)
     # Only offsets under which the log and the card overlap at all can be judged (an exposure paired).
     useful = overlap > 0
-    if not useful.any():
+    if not useful[:coarse].any():
         return None
-    offsets, score, overlap = offsets[useful], score[useful], overlap[useful]
+    is_coarse = np.arange(len(offsets)) < coarse
+    offsets, score, overlap, is_coarse = offsets[useful], score[useful], overlap[useful], is_coarse[useful]
     order = np.lexsort((-overlap, score))
-    best = OffsetScore(float(offsets[order[0]]), float(score[order[0]]), int(overlap[order[0]]))
+    first = int(next(k for k in order if is_coarse[k]))
+    best = OffsetScore(float(offsets[first]), float(score[first]), int(overlap[first]))
+    order = np.array([first] + [int(k) for k in order if k != first])
     rivals: list[OffsetScore] = []
     seen = [best.offset_s]
     for k in order[1:]:

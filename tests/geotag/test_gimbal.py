@@ -164,19 +164,26 @@ def test_the_synchroniser_stamps_a_gimbal_device_by_arrival_and_the_autopilots_m
     sync = Synchroniser()
     boot_host_ns = 20 * S  # the autopilot booted at host 20 s
     sync.on_mavlink(wire(AP, AP.heartbeat_encode(2, 3, 0, 0, 4)), boot_host_ns)
-    sync.on_mavlink(report(0.0, 0.0, VEHICLE, boot_ms=777), boot_host_ns + 1_000_000)  # no autopilot clock yet
+    # the gimbal device booted 3 s before the autopilot: its clock reads 3 s more
+    sync.on_mavlink(report(0.0, 0.0, VEHICLE, boot_ms=3_001), boot_host_ns + 2_000_000)  # no autopilot clock yet
     assert sync.counters()["gimbal_unstamped"] == 1
     for k in range(200):  # 20 s of ATTITUDE at 10 Hz, 1-4 ms late: the arrival clock maps the autopilot
         boot = 1_000 + 100 * k
         msg = wire(AP, AP.attitude_encode(boot, 0, 0, 0, 0, 0, 0))
         sync.on_mavlink(msg, boot_host_ns + int((boot + 1.0 + k % 4) * 1e6))
-    # the gimbal device's own boot clock (777 ms) is not the autopilot's: stamped by its arrival at boot 15 s
-    sync.on_mavlink(report(0.0, 0.0, VEHICLE, boot_ms=777), boot_host_ns + 15 * S)
+    # the gimbal device's own boot clock is not the autopilot's: mapped through its arrivals' lower envelope (a
+    # report 40 ms late in a queue is placed when it was sent) and the autopilot clock
+    for k in range(10):
+        sent_ms = 14_000 + 100 * k
+        late_ms = 40 if k == 9 else 1
+        sync.on_mavlink(
+            report(0.0, 0.0, VEHICLE, boot_ms=sent_ms + 3_000), boot_host_ns + (sent_ms + late_ms) * 1_000_000
+        )
     # the autopilot's mount driver (its own component) reports on the autopilot's clock
     mount = AP.gimbal_device_attitude_status_encode(0, 0, 16_000, EARTH, [1.0, 0.0, 0.0, 0.0], 0, 0, 0, 0)
     sync.on_mavlink(wire(AP, mount), boot_host_ns + 17 * S)
     samples = sync.telemetry.gimbal.samples()
-    assert [s.component for s in samples] == [mavlink2.MAV_COMP_ID_GIMBAL, 1]
-    assert abs(samples[0].boot_us - 15_000_000) <= 5_000  # the arrival clock's floor and the link delay
-    assert samples[1].boot_us == 16_000_500  # the centre of its millisecond
-    assert sync.counters()["gimbal_samples"] == 2
+    assert [s.component for s in samples] == [mavlink2.MAV_COMP_ID_GIMBAL] * 10 + [1]
+    assert abs(samples[-2].boot_us - 14_900_000) <= 5_000  # the late one: the arrival clock's floor, not +40 ms
+    assert samples[-1].boot_us == 16_000_500  # the mount driver: the centre of its millisecond
+    assert sync.counters()["gimbal_samples"] == 11

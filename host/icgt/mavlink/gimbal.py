@@ -8,8 +8,9 @@ frame) as the flags say: GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME / _YAW_IN_VEHICL
 devices that set neither, YAW_LOCK means earth frame (the message's definition in common.xml).
 
 `gimbal_sample` turns a message into a `GimbalSample` stamped on the autopilot's boot clock: a device's own
-``time_boot_ms`` is its own clock, not the autopilot's, so the synchroniser stamps it by its arrival (mapped
-onto the autopilot's clock), unless the autopilot's own component sent it. `earth_quaternion` gives the
+``time_boot_ms`` is its own clock, not the autopilot's, so the synchroniser maps it onto the host's clock by the
+lower envelope of its arrivals (`icgt.clocks.one_way`) and from there onto the autopilot's, unless the autopilot's
+own component sent it. `earth_quaternion` gives the
 device frame -> NED rotation, with the vehicle's yaw for a vehicle-frame report.
 """
 

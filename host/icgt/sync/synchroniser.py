@@ -124,6 +124,7 @@ class Synchroniser:
         self.hello: Hello | None = None
         self.last_status: Status | None = None
         self.events: list[SyncEvent] = []  # drained by the caller (`take_events`)
+        self._gimbal_clocks: dict[int, OneWayClock] = {}  # a gimbal device's boot clock -> host, by component
         self.counts: dict[str, int] = {
             "exposures": 0,
             "exchanges": 0,
@@ -364,13 +365,18 @@ class Synchroniser:
 
     def _on_gimbal(self, msg: Any, rx_ns: int, *, own_clock: bool) -> None:
         """A gimbal's attitude (any component of the autopilot's system), on the autopilot's boot clock: its own
-        ``time_boot_ms`` when the autopilot's component sent it (its mount driver), else its arrival mapped onto
-        that clock (a gimbal device's boot clock is its own)."""
+        ``time_boot_ms`` when the autopilot's component sent it (its mount driver), else the device's own boot
+        clock mapped through its arrivals' lower envelope and the autopilot clock."""
+        stamp_us = int(msg.time_boot_ms) * 1000 + 500  # the centre of the truncated millisecond
         if own_clock:
-            boot_us = int(msg.time_boot_ms) * 1000 + 500  # the centre of the truncated millisecond
+            boot_us = stamp_us
         else:
+            # Its own boot clock, mapped onto the host's by the lower envelope of its arrivals (as the autopilot's
+            # without TIMESYNC): a report that waited in a queue is placed when it was sent, not when it arrived.
+            clock = self._gimbal_clocks.setdefault(int(msg.get_srcComponent()), OneWayClock())
+            clock.add(stamp_us, rx_ns)
             try:
-                boot_us = round(self.autopilot_time.host_to_autopilot_us(rx_ns))
+                boot_us = round(self.autopilot_time.host_to_autopilot_us(clock.autopilot_to_host_ns(stamp_us)))
             except ClockNotSyncedError:
                 self.counts["gimbal_unstamped"] += 1
                 return

@@ -296,3 +296,31 @@ def test_a_narrow_fit_of_coarse_times_is_seen_as_the_rival_of_a_looser_shift() -
         c = dict(flight=flight, cut=(0.5, 1.0), other=None, other_after=False, shift_s=60.0, step_s=0.0, foreign=None)
         frames, images, truth = _composed(c)
         _assert_never_wrong_and_all_accounted(match_times(frames, images), frames, images, truth)
+
+
+def test_a_session_that_may_hold_the_log_doubts_another_sessions_pairs() -> None:
+    """A longer search's case: another flight of the same trigger pattern (1 s EXIF) with its clock set 1 h away,
+    before the log's own images on the card. Split into two sessions, the other flight's paired all 8 exposures
+    (wrongly) while the log's own images fitted them too but could not say which; the merge kept the pairs because
+    no other session paired those exposures. A session whose images may be them contests them now."""
+    base: dict[str, Any] = dict(seed=0, dt=0.2, res=1.0, offset=0.0, drift=0.0, wired=True, passes=1, shots=15)
+    base |= dict(pause=1.0, jitter=0.0005, p_miss=0.0, p_manual=0.0, p_untimed=0.0, test_shot=False)
+    other = dict(base, wired=False, shots=8)
+    c = dict(flight=base, cut=(0.0, 0.5), other=other, other_after=False, shift_s=60.0, step_s=3600.0, foreign=None)
+    frames, images, truth = _composed(c)
+    result = match_times(frames, images)
+    _assert_never_wrong_and_all_accounted(result, frames, images, truth)
+    assert any("may be this exposure too" in a.why for a in result.ambiguous)
+
+
+def test_a_foreign_file_in_its_own_session_does_not_take_an_exposure_the_log_may_have() -> None:
+    """A CI run's case: a log of one exposure, three images of 1 s EXIF, and another device's file 5000 s later
+    (a session of its own): that file was paired with the exposure (its lone image fits anything), while the
+    flight's own three images could not say which of them was it."""
+    base: dict[str, Any] = dict(seed=0, dt=0.2, res=1.0, offset=0.0, drift=0.0, wired=True, passes=1, shots=3)
+    base |= dict(pause=1.0, jitter=0.0005, p_miss=0.0, p_manual=0.0, p_untimed=0.0, test_shot=False)
+    c = dict(
+        flight=base, cut=(0.0, 0.1), other=None, other_after=False, shift_s=60.0, step_s=0.0, foreign=(1.0, 5000.0)
+    )
+    frames, images, truth = _composed(c)
+    _assert_never_wrong_and_all_accounted(match_times(frames, images), frames, images, truth)

@@ -174,6 +174,7 @@ def _match_session(
         # No exposure is named as an image's candidate: which ones it could be depends on the offset, and the
         # one that fits best here is no more the camera's than its rivals (the note lists them).
         why = "the camera clock offset is not decided (see the notes): not paired by its time"
+        result.undecided_exposures = verdict.best.overlap
         for i in [*outcome.pairs, *outcome.ambiguous]:
             if card.has_time(i):
                 if i in outcome.pairs:

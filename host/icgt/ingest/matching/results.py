@@ -89,6 +89,10 @@ class MatchResult:
     resolution_s: float | None = None
     """Coarsest EXIF time resolution seen (1.0: whole seconds)."""
     notes: list[str] = field(default_factory=list)
+    undecided_exposures: int = 0
+    """Exposures of the log the card's images could explain under an offset that is not decided (the best
+    offset's overlap when rivals explain the card as well; 0 when the clock is decided): another session of
+    the card then cannot claim those exposures as its own (`sessions.match_sessions`). Not in the report."""
 
     def to_json(self) -> dict[str, Any]:
         def frame_ref(f: FrameRecord) -> dict[str, Any]:

@@ -75,16 +75,46 @@ def match_sessions(
         for p in r.pairs:
             claims.setdefault(p.frame.frame_seq, []).append(k)
     contested = {seq for seq, ks in claims.items() if len(ks) > 1}
+    # A session whose clock is not decided may hold the log as well as one that pairs it (two flights of one
+    # trigger pattern, the other's clock set 1 h away): its rival offsets could lay the same exposures on its
+    # own images, so the pairing session's claim is not exclusive. Unless it could explain fewer than half of
+    # them (a test shot of one image does not doubt a flight).
+    doubted: dict[int, str] = {}
+    for k, r in enumerate(results):
+        n = r.undecided_exposures
+        for j, other in enumerate(results):
+            if n > 0 and j != k and other.pairs and 2 * n >= len(other.pairs):
+                doubted.setdefault(
+                    j,
+                    f"session {k + 1} of the card, whose camera clock is not decided, could hold {n} of the log's "
+                    "exposures as well: this session's pairs are not its alone",
+                )
+    contested |= {p.frame.frame_seq for j in doubted for p in results[j].pairs}
+    # An exposure that one session pairs and another's ambiguous image may be (it fits its time): not the first's
+    # alone either.
+    maybe: dict[int, set[int]] = {}
+    for k, r in enumerate(results):
+        for a in r.ambiguous:
+            for f in a.candidates:
+                maybe.setdefault(f.frame_seq, set()).add(k)
+    contested |= {seq for seq, ks in claims.items() if maybe.get(seq, set()) - set(ks)}
     paired: set[int] = set()
     for k, (span, r) in enumerate(zip(sessions, results, strict=True)):
         label = _label(times, k, span)
         kept: list[Pair] = []
         for p in r.pairs:
-            if p.frame.frame_seq in contested:
-                others = ", ".join(str(j + 1) for j in claims[p.frame.frame_seq] if j != k)
-                merged.ambiguous.append(
-                    Ambiguous(p.image, (p.frame,), f"sessions {k + 1} and {others} of the card both pair this exposure")
-                )
+            if k in doubted:
+                merged.ambiguous.append(Ambiguous(p.image, (p.frame,), doubted[k]))
+            elif p.frame.frame_seq in contested:
+                seq = p.frame.frame_seq
+                pairing = [j for j in claims[seq] if j != k]
+                if pairing:
+                    others = ", ".join(str(j + 1) for j in pairing)
+                    why = f"sessions {k + 1} and {others} of the card both pair this exposure"
+                else:
+                    others = ", ".join(str(j + 1) for j in sorted(maybe.get(seq, set()) - {k}))
+                    why = f"session {others} of the card has an image that may be this exposure too"
+                merged.ambiguous.append(Ambiguous(p.image, (p.frame,), why))
             else:
                 kept.append(p)
                 paired.add(p.frame.frame_seq)
@@ -108,7 +138,9 @@ def match_sessions(
                 chosen[seq] = u
     for seq in contested:
         frame = next(p.frame for r in results for p in r.pairs if p.frame.frame_seq == seq)
-        chosen[seq] = UnmatchedFrame(frame, FRAME_AMBIGUOUS, "two sessions of the card pair it")
+        two = len(claims.get(seq, ())) > 1
+        why = "two sessions of the card pair it" if two else "two sessions of the card may hold it"
+        chosen[seq] = UnmatchedFrame(frame, FRAME_AMBIGUOUS, why)
     merged.unmatched_frames = [chosen[s] for s in sorted(chosen)]
     return merged
 

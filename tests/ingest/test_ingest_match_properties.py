@@ -324,3 +324,16 @@ def test_a_foreign_file_in_its_own_session_does_not_take_an_exposure_the_log_may
     )
     frames, images, truth = _composed(c)
     _assert_never_wrong_and_all_accounted(match_times(frames, images), frames, images, truth)
+
+
+def test_a_foreign_file_inside_a_flight_does_not_split_it_into_two_sessions() -> None:
+    """A CI run's case: another device's file (5000 s off) among the flight's images split the card into three
+    sessions; the flight's first part, cut off from the rest, paired an image with an exposure 3.5 s away."""
+    base: dict[str, Any] = dict(seed=0, dt=0.2, res=1.0, offset=0.0, drift=0.0, wired=True, passes=4, shots=4)
+    base |= dict(pause=1.0, jitter=0.0005, p_miss=0.0, p_manual=0.0, p_untimed=0.0, test_shot=False)
+    c = dict(flight=base, cut=(0.5, 1.0), other=None, other_after=False, shift_s=60.0, step_s=0.0)
+    c["foreign"] = (0.625, 5000.0)
+    frames, images, truth = _composed(c)
+    result = match_times(frames, images)
+    _assert_never_wrong_and_all_accounted(result, frames, images, truth)
+    assert not any(n.startswith("the card holds") for n in result.notes)  # one session, the file an extra

@@ -38,18 +38,30 @@ def split_sessions(times: Sequence[ImageTime]) -> list[range]:
     """The card's sessions as ranges of card indices (an image without an EXIF time joins the session of the
     images before it; the card's leading untimed images join the first session)."""
     breaks: list[int] = []
-    last: ImageTime | None = None
-    for i, t in enumerate(times):
-        if t.time_s is None or t.resolution_s is None:
-            continue
-        if last is not None and last.time_s is not None and last.resolution_s is not None:
-            back = last.time_s - t.time_s
-            gap = t.time_s - (last.time_s + last.resolution_s)
-            if back > max(last.resolution_s, t.resolution_s) + BACKWARD_SLACK_S or gap > SESSION_GAP_S:
-                breaks.append(i)
-        last = t
+    timed = [i for i, t in enumerate(times) if t.time_s is not None and t.resolution_s is not None]
+    for a, b in itertools.pairwise(timed):
+        if _breaks(times[a], times[b]):
+            breaks.append(b)
+    # One timed image whose time leaves the run and comes back (another device's file among the camera's, or a
+    # picture with a wrong clock) is no session of its own: the images on either side go on as one, and split
+    # there a flight's images lost their neighbours (a CI run: 1 wrong pair).
+    lone: set[int] = set()
+    for k in range(1, len(timed) - 1):
+        a, i, b = timed[k - 1], timed[k], timed[k + 1]
+        if i in breaks and b in breaks and not _breaks(times[a], times[b]):
+            lone.update((i, b))
+    breaks = [i for i in breaks if i not in lone]
     edges = [0, *breaks, len(times)]
     return [range(a, b) for a, b in itertools.pairwise(edges)]
+
+
+def _breaks(last: ImageTime, t: ImageTime) -> bool:
+    """Whether the camera's time from ``last`` to ``t`` (both timed) starts a new session."""
+    assert last.time_s is not None and last.resolution_s is not None
+    assert t.time_s is not None and t.resolution_s is not None
+    back = last.time_s - t.time_s
+    gap = t.time_s - (last.time_s + last.resolution_s)
+    return back > max(last.resolution_s, t.resolution_s) + BACKWARD_SLACK_S or gap > SESSION_GAP_S
 
 
 def _label(times: Sequence[ImageTime], k: int, span: range) -> str:

@@ -27,6 +27,7 @@ def gimbal_at(
 ) -> np.ndarray | None:
     """Device frame -> NED (w, x, y, z) at ``mid_boot_us`` (autopilot boot clock [us]); None by the rule above."""
     before, after = reports.bracket(int(mid_boot_us))
+    q_report: object = None
     if (
         before is not None
         and after is not None
@@ -35,11 +36,12 @@ def gimbal_at(
     ):
         span = after.boot_us - before.boot_us
         f = 0.0 if span == 0 else (mid_boot_us - before.boot_us) / span
-        q = earth_quaternion(q_slerp(before.q_wxyz, after.q_wxyz, f), before.yaw_in_earth_frame, body_yaw_rad)
-        return None if q is None else np.asarray(q, dtype=float)
-    near = [s for s in (before, after) if s is not None and abs(s.boot_us - mid_boot_us) <= max_hold_s * 1e6]
-    if not near:
-        return None
-    nearest = min(near, key=lambda s: abs(s.boot_us - mid_boot_us))
-    q = earth_quaternion(nearest.q_wxyz, nearest.yaw_in_earth_frame, body_yaw_rad)
+        q_report, earth = q_slerp(before.q_wxyz, after.q_wxyz, f), before.yaw_in_earth_frame
+    else:
+        near = [s for s in (before, after) if s is not None and abs(s.boot_us - mid_boot_us) <= max_hold_s * 1e6]
+        if not near:
+            return None
+        nearest = min(near, key=lambda s: abs(s.boot_us - mid_boot_us))
+        q_report, earth = nearest.q_wxyz, nearest.yaw_in_earth_frame
+    q = earth_quaternion(q_report, earth, body_yaw_rad)
     return None if q is None else np.asarray(q, dtype=float)

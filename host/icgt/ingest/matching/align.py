@@ -34,7 +34,6 @@ from icgt.ingest.matching import batch
 from icgt.ingest.matching.decide import decide
 from icgt.ingest.matching.results import (
     AMBIGUITY_MARGIN,
-    IMAGE_EXTRA,
     IMAGE_NO_EXPOSURE,
     IMAGE_NO_TIME_UNPLACED,
 )
@@ -117,27 +116,25 @@ def windows(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, 
 Segments = list[tuple[list[int], int, int]]
 
 
-def segments(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, Ranges, Segments, list[int], Flat]:
-    """Windows, ranges made monotone, the independent segments (images, first, last frame), extra images.
+def segments(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, Ranges, Segments, Flat]:
+    """Windows, ranges, the independent segments (images, first, last frame).
 
-    Ranges made monotone (a camera numbers in time order): an image may not start before the latest
-    start of the images before it (a running maximum; an image whose range then closes is extra).
-    Segments where ranges overlap: a new one starts past the greatest end so far. The last answer is
+    A segment ends where every later image's range starts past every earlier one's end (`_segments`). The
+    card's order is the camera's, and the alignment inside a segment keeps it. The last answer is
     remembered (a cost-only pass is often followed by the full solve of the same model); callers only
     read what is returned."""
     key = (model.offset, model.drift, widen)
     if fr.last_segments is not None and fr.last_segments[0] == key:
-        known: tuple[Cands, Ranges, Segments, list[int], Flat] = fr.last_segments[1]
+        known: tuple[Cands, Ranges, Segments, Flat] = fr.last_segments[1]
         return known
     found = _segments(card, fr, model, widen)
     fr.last_segments = (key, found)
     return found
 
 
-def _segments(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, Ranges, Segments, list[int], Flat]:
+def _segments(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands, Ranges, Segments, Flat]:
     cands, r0_all, r1_all, flat = windows(card, fr, model, widen)
     segs: Segments = []
-    extra: list[int] = []
     with_range = np.flatnonzero(r0_all >= 0)
     lo_r = np.full(len(card), -1, dtype=np.int64)
     hi_r = np.full(len(card), -1, dtype=np.int64)
@@ -159,7 +156,7 @@ def _segments(card: Card, fr: Frames, model: Model, widen: float) -> tuple[Cands
         for s0, s1 in zip(starts.tolist(), ends.tolist(), strict=True):
             segs.append((ki_l[s0:s1], floor_l[s0], reach_l[s1 - 1]))
     ranges = Ranges(lo_r, hi_r)
-    return cands, ranges, segs, extra, flat
+    return cands, ranges, segs, flat
 
 
 def _segment_key(
@@ -184,7 +181,7 @@ def _segment_key(
 
 def solve_cost(card: Card, fr: Frames, model: Model, widen: float, limit: float) -> float:
     """The cost of `solve` (forward passes only), or infinity when it exceeds `limit`."""
-    cands, ranges, segs, _extra, flat = segments(card, fr, model, widen)
+    cands, ranges, segs, flat = segments(card, fr, model, widen)
     cost = fr.image_skip * len(ranges.missing) + float(fr.skip_prefix[-1])  # (whole numbers: exact)
     for _imgs, lo, hi in segs:
         cost -= float(fr.skip_prefix[hi + 1] - fr.skip_prefix[lo])
@@ -254,10 +251,8 @@ def _split(
 
 def solve(card: Card, fr: Frames, model: Model, widen: float) -> Outcome:
     """The alignment under `model` with every window widened by `widen` [s]."""
-    cands, ranges, segs, extra, flat = segments(card, fr, model, widen)
+    cands, ranges, segs, flat = segments(card, fr, model, widen)
     out = Outcome(0.0, {}, {}, {}, set())
-    for i in extra:
-        out.extra[i] = IMAGE_EXTRA
     # The segments of several images solved first (stacked where `_split` says so, else one by one),
     # then merged in card order (dict order is the report's order).
     parts: dict[int, Outcome] = {}

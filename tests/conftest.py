@@ -12,8 +12,9 @@ ROOT = Path(__file__).resolve().parent.parent
 
 # Property tests draw the same examples on every run ("deterministic": make test and CI give one answer);
 # ICGT_HYPOTHESIS=explore draws new ones each run to hunt for fresh counterexamples (then add the one found
-# as an explicit case). The examples depend on the Hypothesis version as well as on the test's source: dev pins
-# it exactly (host/pyproject.toml), so a fresh CI install draws what a local run draws. Explore found the firmware's wrapping seq_missed counter (SPEC.md §3).
+# as an explicit case). The examples depend on the Hypothesis version as well as on the test's source: dev
+# pins it exactly (host/pyproject.toml), so a fresh CI install draws what a local run draws. Explore found
+# the firmware's wrapping seq_missed counter (SPEC.md §3).
 settings.register_profile("deterministic", derandomize=True, database=None)
 settings.register_profile("explore", derandomize=False)
 settings.load_profile(os.environ.get("ICGT_HYPOTHESIS", "deterministic"))

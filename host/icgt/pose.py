@@ -43,6 +43,7 @@ from icgt.geodesy import (
 )
 
 __all__ = [
+    "CARRIED_ATTITUDE_SOURCES",
     "Q_FRD_TO_FLU",
     "Q_NED_TO_ENU",
     "Q_OPTICAL_TO_FRD",
@@ -67,6 +68,9 @@ __all__ = [
 Q_OPTICAL_TO_FRD: FloatArray = np.array([0.5, 0.5, 0.5, 0.5])
 """Camera optical -> body FRD with no mounting angles: optical z (forward) = body x, x (right) = body y,
 y (down) = body z."""
+
+CARRIED_ATTITUDE_SOURCES = ("gimbal", "board_imu")
+"""Attitude sources that measure the camera's carrier itself (not the body): its attitude times the mount angles."""
 
 Q_FRD_TO_FLU: FloatArray = np.array([0.0, 1.0, 0.0, 0.0])
 """Body FRD -> FLU: 180 deg about x (its own inverse)."""
@@ -203,7 +207,8 @@ class CameraMounting:
     pixel_pitch_mm: float
     focal_length_mm: float
     # "mount": the camera turns with the body; "gimbal": with the gimbal's reported attitude (the mount angles
-    # are then the camera's on the gimbal's device frame)
+    # are then the camera's on the gimbal's device frame); "board_imu": with the board's BNO055 (the angles are
+    # the camera's on the board)
     attitude_source: str = "mount"
 
     @classmethod
@@ -282,12 +287,13 @@ def camera_fields(
 
     ``reference_enu``: the autopilot's reference point [m, ENU] (None: no position); ``body_q``: FRD -> NED
     (None: no attitude; the position is then the reference point's); ``range_m``: the valid range [m];
-    ``gimbal_q``: the gimbal's device frame -> NED at the instant, for a mounting whose attitude source is the
-    gimbal (None there: no camera attitude)."""
+    ``gimbal_q``: the camera's carrier -> NED at the instant (the gimbal's device frame, or the board's sensor
+    axes for "board_imu"), for a mounting whose attitude source is one of `CARRIED_ATTITUDE_SOURCES` (None
+    there: no camera attitude)."""
     enu = camera_position_enu(reference_enu, body_q, mounting.lever_arm_body_m) if reference_enu is not None else None
     cam_q = None
     roll = pitch = yaw = None
-    if mounting.attitude_source == "gimbal":
+    if mounting.attitude_source in CARRIED_ATTITUDE_SOURCES:
         cam_q = np.asarray(q_multiply(gimbal_q, mounting.q_cam_body)) if gimbal_q is not None else None
     elif body_q is not None:
         cam_q = camera_quaternion(body_q, mounting.q_cam_body, gimbal_stabilised=mounting.gimbal_stabilised)

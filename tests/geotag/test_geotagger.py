@@ -64,6 +64,11 @@ class FakeDeviceClock:
             raise ClockNotSyncedError("no exchange yet")
         return round(device_us * 1000) + DEV_TO_HOST_NS
 
+    def host_to_device_us(self, host_ns: int) -> float:
+        if not self.synced:
+            raise ClockNotSyncedError("no exchange yet")
+        return (host_ns - DEV_TO_HOST_NS) / 1000
+
     def uncertainty_ns(self, device_us: float) -> int:
         if not self.synced:
             raise ClockNotSyncedError("no exchange yet")

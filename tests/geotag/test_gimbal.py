@@ -59,6 +59,9 @@ class _Clocks:
     def device_to_host_ns(self, device_us: float) -> int:
         return round(device_us * 1000) + DEV_TO_HOST_NS
 
+    def host_to_device_us(self, host_ns: int) -> float:
+        return (host_ns - DEV_TO_HOST_NS) / 1000
+
     def uncertainty_ns(self, device_us: float) -> int:
         return 20_000
 

@@ -42,9 +42,19 @@ class GeotagConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     # "gimbal" (the gimbal's own report, MAVLink Gimbal Protocol v2 GIMBAL_DEVICE_ATTITUDE_STATUS, interpolated at
     # mid-exposure; the mount angles are then the camera's on the gimbal, usually 0). A frame without gimbal
     # samples around mid has no camera attitude (flag gimbal_stale): never the body's in its place.
-    attitude_source: Literal["mount", "gimbal"] = "mount"
+    # "board_imu": the board's BNO055, riding on the gimbal with the camera (icgt.geotag.board_imu; the mount
+    # angles are then the camera's on the board, from the calibration flight of docs/board-imu.md).
+    attitude_source: Literal["mount", "gimbal", "board_imu"] = "mount"
     gimbal_max_gap_s: Annotated[float, Meta(gt=0.0, le=10.0)] = 0.5  # gimbal samples farther apart: gimbal_stale
     gimbal_max_hold_s: Annotated[float, Meta(ge=0.0, le=10.0)] = 0.05  # beyond the last gimbal sample at most
+    # board_imu: its north. "autopilot": read off the vehicle's heading while the gimbal follows it (settled:
+    # the vehicle's yaw rate at most board_imu_max_yaw_rate_deg_s) over the board_imu_heading_window_s before
+    # mid; "magnetic": the BNO's own north plus board_imu_heading_offset_deg (true minus magnetic).
+    board_imu_heading: Literal["autopilot", "magnetic"] = "autopilot"
+    board_imu_heading_offset_deg: _Angle = 0.0
+    board_imu_heading_window_s: Annotated[float, Meta(gt=0.0, le=20.0)] = 10.0  # the IMU buffer holds 20 s
+    board_imu_max_yaw_rate_deg_s: Annotated[float, Meta(gt=0.0, le=180.0)] = 2.0
+    board_imu_max_gap_s: Annotated[float, Meta(gt=0.0, le=1.0)] = 0.05  # IMU samples farther apart around mid
     range_min_m: Annotated[float, Meta(ge=0.0, le=1000.0)] = 0.5
     range_max_m: Annotated[float, Meta(gt=0.0, le=1000.0)] = 40.0
     range_stale_s: Annotated[float, Meta(gt=0.0, le=10.0)] = 0.05  # a range sample farther from mid: not used

@@ -21,6 +21,7 @@ import numpy as np
 from icgt.errors import IcgtError
 from icgt.geodesy import LocalFrame, q_slerp, q_to_euler_zyx
 from icgt.geotag import parts
+from icgt.geotag.board_imu import HeadingWindow, board_at, camera_from_board, heading_offset_rad
 from icgt.geotag.bounds import MotionAllowance
 from icgt.geotag.config import GeotagConfig
 from icgt.geotag.gimbal_pose import gimbal_at
@@ -60,6 +61,7 @@ class DeviceClock(Protocol):
     """Device clock [us] -> host CLOCK_MONOTONIC [ns] (icgt.clocks.DeviceClockFilter)."""
 
     def device_to_host_ns(self, device_us: float) -> int: ...
+    def host_to_device_us(self, host_ns: int) -> float: ...
     def uncertainty_ns(self, device_us: float) -> int: ...
     @property
     def settled(self) -> bool: ...
@@ -131,6 +133,12 @@ class Geotagger:
             ),
         )
         self._lever_m = self._mounting.lever_arm_m
+        self._heading_window = HeadingWindow(
+            window_s=config.board_imu_heading_window_s,
+            points=32,
+            max_yaw_rate_rad_s=math.radians(config.board_imu_max_yaw_rate_deg_s),
+            min_points=8,
+        )
         # Device samples come back late after a gap (RESEND): a sample from before the newest one is
         # inserted in place, never taken for a reboot (the synchroniser clears them on a device reboot).
         # Room for what the device resends (its IMU and range rings: 512 and 1024 samples) beside what came
@@ -214,6 +222,10 @@ class Geotagger:
             gimbal = self._tm.gimbal.latest()
             if gimbal is None or gimbal.boot_us < mid_boot:
                 return False
+        if self._cfg.attitude_source == "board_imu":
+            imu = self._imu.latest()
+            if imu is None or imu.boot_us < self._dev_us(mid_host_ns):
+                return False
         return fused is not None and fused.boot_us >= mid_boot and att is not None and att.boot_us >= mid_boot
 
     def _wait_limit_ms(self, mid_host_ns: int) -> float:
@@ -252,7 +264,7 @@ class Geotagger:
         imu = self._imu_at(p.mid_device_us, e, flags)
         rng = self._range_at(p.mid_device_us, e, flags)
         body_q = att[0] if att else None
-        gimbal_q = self._gimbal(mid_boot, body_q, flags) if self._cfg.attitude_source == "gimbal" else None
+        gimbal_q = self._carrier(p.mid_device_us, mid_boot, body_q, flags)
         cam = camera_fields(pos.enu if pos else None, body_q, rng[0] if rng else None, self._mounting, gimbal_q)
         blur = self._blur_px(imu, mid_boot, e.duration_us, cam.scale_mm_per_px)
         if blur is not None and blur > self._cfg.blur_limit_px:
@@ -354,6 +366,49 @@ class Geotagger:
         shape = f * (1.0 - f)
         motion = d_rate * span * shape / 2.0 + unseen * span**2 * shape / 4.0
         return np.asarray(q_slerp(before.q_wxyz, after.q_wxyz, f), dtype=float), base + math.degrees(motion)
+
+    def _carrier(
+        self, mid_device_us: int, mid_boot: float | None, body_q: np.ndarray | None, flags: list[str]
+    ) -> np.ndarray | None:
+        """What carries the camera -> NED at mid, for the attitude sources that measure it (the gimbal's
+        report, the board's BNO055); None for "mount", or flagged when it is not known."""
+        if self._cfg.attitude_source == "gimbal":
+            return self._gimbal(mid_boot, body_q, flags)
+        if self._cfg.attitude_source == "board_imu":
+            return self._board(mid_device_us, flags)
+        return None
+
+    def _board(self, mid_device_us: int, flags: list[str]) -> np.ndarray | None:
+        """The board's sensor axes -> NED at mid (`icgt.geotag.board_imu`); None: flag board_imu_stale or
+        board_imu_no_heading (never the body's attitude in its place)."""
+        gap_us = self._cfg.board_imu_max_gap_s * 1e6
+        q_bno = board_at(self._imu, mid_device_us, gap_us)
+        if q_bno is None:
+            flags.append(FrameFlag.BOARD_IMU_STALE.value)
+            return None
+        offset: float | None = math.radians(self._cfg.board_imu_heading_offset_deg)
+        if self._cfg.board_imu_heading == "autopilot":
+            offset = heading_offset_rad(
+                self._imu, self._attitude_buffer(), mid_device_us, self._device_to_boot_us,
+                self._mounting.q_cam_body, self._heading_window, gap_us,
+            )  # fmt: skip
+        if offset is None:
+            flags.append(FrameFlag.BOARD_IMU_NO_HEADING.value)
+            return None
+        return camera_from_board(q_bno, offset)
+
+    def _device_to_boot_us(self, device_us: float) -> float | None:
+        try:
+            return self._ap.host_to_autopilot_us(self._dev.device_to_host_ns(device_us))
+        except IcgtError:
+            return None
+
+    def _dev_us(self, host_ns: int) -> float:
+        """A host instant on the device clock (the arrival time before the first exchange: the frame waits)."""
+        try:
+            return self._dev.host_to_device_us(host_ns)
+        except IcgtError:
+            return math.inf
 
     def _gimbal(self, mid_boot: float | None, body_q: np.ndarray | None, flags: list[str]) -> np.ndarray | None:
         """The gimbal's device frame -> NED at mid (`gimbal_pose.gimbal_at`); None: flag gimbal_stale (never the

@@ -63,6 +63,10 @@ class FrameFlag(enum.StrEnum):
     # [camera] attitude_source = "gimbal": no gimbal attitude around mid (its stream silent or too sparse), or a
     # vehicle-frame report without the body's yaw: the frame has no camera attitude (never the body's instead)
     GIMBAL_STALE = "gimbal_stale"
+    # attitude_source = "board_imu": no two BNO055 samples around mid (board_imu_max_gap_s), or no heading for
+    # it (the autopilot's heading not settled long enough in the window before mid): no camera attitude
+    BOARD_IMU_STALE = "board_imu_stale"
+    BOARD_IMU_NO_HEADING = "board_imu_no_heading"
 
 
 POOR_POSE_FLAGS = (

@@ -137,6 +137,9 @@ class _Clock:
     def device_to_host_ns(self, device_us: float) -> int:
         return round(device_us * 1000)
 
+    def host_to_device_us(self, host_ns: int) -> float:
+        return host_ns / 1000
+
     def uncertainty_ns(self, device_us: float) -> int:
         return 0
 

@@ -47,6 +47,12 @@ def recorder_config_text(
     cam, cap, sen = sc.camera, sc.camera.capture, sc.sensors
     n = sc.structure.normal
     signing = f'signing_key_file = "{signing_key_file}"' if signing_key_file is not None else ""
+    # the camera's attitude: the body's times the mount; the gimbal's report; or the board's BNO055, with the
+    # camera's alignment on the board as its calibration flight found it (docs/board-imu.md)
+    mount = (cam.mount_roll_deg, cam.mount_pitch_deg, cam.mount_yaw_deg)
+    attitude_source = "mount" if cam.gimbal is None else "gimbal"
+    if cam.board_imu is not None:
+        mount, attitude_source = cam.board_imu.camera_on_board_deg, "board_imu"
     return f"""# written by icgt demo for scenario {sc.name}
 [device]
 set_rtc = true
@@ -76,12 +82,12 @@ focal_length_mm = {cam.focal_length_mm}
 sensor_width_mm = {cam.sensor_width_mm}
 image_width_px = {cam.image_width_px}
 image_height_px = {cam.image_height_px}
-mount_roll_deg = {cam.mount_roll_deg}
-mount_pitch_deg = {cam.mount_pitch_deg}
-mount_yaw_deg = {cam.mount_yaw_deg}
+mount_roll_deg = {mount[0]}
+mount_pitch_deg = {mount[1]}
+mount_yaw_deg = {mount[2]}
 lever_arm_body_m = [{cam.lever_arm_m[0]}, {cam.lever_arm_m[1]}, {cam.lever_arm_m[2]}]
 gimbal_stabilised = {"true" if cam.stabilised and cam.gimbal is None else "false"}
-attitude_source = "{"mount" if cam.gimbal is None else "gimbal"}"
+attitude_source = "{attitude_source}"
 surface_normal_enu = [{n[0]}, {n[1]}, {n[2]}]
 
 [output]

@@ -238,6 +238,20 @@ class Gimbal:
 
 
 @dataclass(frozen=True, kw_only=True)
+class BoardImu:
+    """The board rides on the gimbal with the camera (`[camera.board_imu]`): its BNO055 reports the board's
+    attitude in its own world frame, level by gravity but with its own north, and the board is not quite square
+    to the camera. Without this table the simulated BNO055 reports the camera's axes -> NED exactly."""
+
+    camera_on_board_deg: Vec3 = (0.0, 0.0, 0.0)
+    """The camera's FRD axes on the board's sensor axes, roll pitch yaw (ZYX) [deg]: what a calibration finds."""
+    heading_offset_deg: float = 0.0
+    """True north minus the BNO's north at the start [deg] (declination, its heading error, IMU-mode start)."""
+    heading_drift_deg_per_min: float = 0.0
+    """The BNO's north turning with time (IMU mode: its gyro's bias) [deg/min]."""
+
+
+@dataclass(frozen=True, kw_only=True)
 class Camera:
     make: str = "SONY"
     model: str = "ILCE-9"
@@ -274,6 +288,8 @@ class Camera:
     capture: Capture = field(default_factory=Capture)
     gimbal: Gimbal | None = None
     """A gimbal carries the camera (`[camera.gimbal]`): its attitude is the gimbal's, not body times mount."""
+    board_imu: BoardImu | None = None
+    """The board's BNO055 on the gimbal with the camera, as it is really mounted (`[camera.board_imu]`)."""
 
     def footprint_m(self, distance_m: float) -> tuple[float, float]:
         """(width, height) of the image footprint [m] on a surface square to the optical axis."""
@@ -608,9 +624,22 @@ def _read_camera(r: TableReader) -> Camera:
         k3=r.number("k3", 0.0, min_value=-1.0, max_value=1.0),
         capture=capture,
         gimbal=_read_gimbal(r.table("gimbal")) if r.has("gimbal") else None,
+        board_imu=_read_board_imu(r.table("board_imu")) if r.has("board_imu") else None,
     )
     r.finish()
     return cam
+
+
+def _read_board_imu(r: TableReader) -> BoardImu:
+    b = BoardImu(
+        camera_on_board_deg=r.vec3("camera_on_board_deg", (0.0, 0.0, 0.0)),
+        heading_offset_deg=r.number("heading_offset_deg", 0.0, min_value=-180.0, max_value=180.0),
+        heading_drift_deg_per_min=r.number("heading_drift_deg_per_min", 0.0, min_value=-10.0, max_value=10.0),
+    )
+    if max(abs(a) for a in b.camera_on_board_deg) > 30.0:
+        r.fail("camera_on_board_deg", f"each angle within 30 deg of square to the camera, got {b.camera_on_board_deg}")
+    r.finish()
+    return b
 
 
 def _read_gimbal(r: TableReader) -> Gimbal:

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from icgt.geodesy import FloatArray, LocalFrame, enu_to_ned, q_conjugate, q_multiply, q_rotate
+from icgt.geodesy import FloatArray, LocalFrame, enu_to_ned, q_conjugate, q_from_euler_zyx, q_multiply, q_rotate
 from icgt.pose import Q_OPTICAL_TO_FRD
 from icgt.sim.scenario import Scenario, SimError
 from icgt.sim.trajectory import GRAVITY_M_S2, Trajectory
@@ -157,15 +157,28 @@ def sensor_truth_table(
     n = round((scenario.duration_s + margin_s) / SENSOR_TRUTH_PERIOD_S) + 1
     tau: FloatArray = np.arange(n, dtype=np.float64) * SENSOR_TRUTH_PERIOD_S
     st = traj.state(tau)
-    q = _continuous_hemisphere(st.q_camera_ned)
-    q_inv = q_conjugate(q)
+    q_sensor, omega = st.q_camera_ned, st.omega_camera_rad_s
+    board = scenario.camera.board_imu
+    if board is not None:
+        # the board's axes: the camera's turned back by its alignment on the board (q_cam = q_board q_cam_board)
+        q_cam_board = q_from_euler_zyx(*np.radians(board.camera_on_board_deg))
+        q_sensor = np.asarray(q_multiply(q_sensor, q_conjugate(q_cam_board)))
+        omega = q_rotate(q_cam_board, omega)
+    q_inv = q_conjugate(q_sensor)
     lin_ned = enu_to_ned(st.camera_accel_enu_m_s2)
     # an accelerometer measures specific force: acceleration minus gravity (gravity is +z in NED)
     specific_ned = lin_ned - np.array([0.0, 0.0, GRAVITY_M_S2])
     accel = q_rotate(q_inv, specific_ned)
     lin = q_rotate(q_inv, lin_ned)
+    if board is not None:
+        # what the BNO055 reports: the board's attitude in its own world frame, whose north is the true one
+        # turned by -offset (true north minus its north), drifting
+        offset_rad = np.radians(board.heading_offset_deg + board.heading_drift_deg_per_min * tau / 60.0)
+        zero = np.zeros_like(tau)
+        q_sensor = np.asarray(q_multiply(q_from_euler_zyx(zero, zero, -offset_rad), q_sensor))
+    q = _continuous_hemisphere(q_sensor)
     range_cm = np.where(st.range_valid, st.range_m * 100.0, 0.0)
-    return np.column_stack([tau, q, st.omega_camera_rad_s, accel, lin, range_cm, st.range_valid.astype(np.float64)])
+    return np.column_stack([tau, q, omega, accel, lin, range_cm, st.range_valid.astype(np.float64)])
 
 
 def write_sensor_truth(

@@ -38,7 +38,7 @@ from icgt.geodesy import LocalFrame, q_conjugate, q_multiply
 from icgt.geotag.config import GeotagConfig
 from icgt.geotag.parts import attitude_fields
 from icgt.geotag.record import FrameFlag, FrameRecord
-from icgt.pose import CameraMounting, camera_fields
+from icgt.pose import CARRIED_ATTITUDE_SOURCES, CameraMounting, camera_fields
 from icgt.trajectories.source import PoseFix, PoseMiss, PoseSource, TrajectoryError
 
 __all__ = ["RegeotagConfig", "RegeotagResult", "regeotag", "regeotag_detailed"]
@@ -139,10 +139,13 @@ def _place(frame: FrameRecord, fix: PoseFix, cfg: RegeotagConfig, local: LocalFr
 
 
 def _recorded_gimbal(frame: FrameRecord, mounting: CameraMounting) -> np.ndarray | None:
-    """A gimbal camera's attitude stays as recorded (the gimbal's report, not the trajectory's): its gimbal
-    device frame -> NED back from the recorded camera attitude. (A vehicle-frame gimbal's yaw was composed
-    with the recorded body yaw; a trajectory with another yaw does not turn it.)"""
-    if mounting.attitude_source != "gimbal" or None in (frame.cam_qw, frame.cam_qx, frame.cam_qy, frame.cam_qz):
+    """A gimbal (or board IMU) camera's attitude stays as recorded (the gimbal's report or the board's BNO055,
+    not the trajectory's): its carrier -> NED back from the recorded camera attitude. (A vehicle-frame gimbal's
+    yaw was composed with the recorded body yaw, a board IMU's heading read off it; a trajectory with another
+    yaw does not turn them.)"""
+    if mounting.attitude_source not in CARRIED_ATTITUDE_SOURCES:
+        return None
+    if None in (frame.cam_qw, frame.cam_qx, frame.cam_qy, frame.cam_qz):
         return None
     cam_q = np.array([frame.cam_qw, frame.cam_qx, frame.cam_qy, frame.cam_qz], dtype=float)
     return np.asarray(q_multiply(cam_q, q_conjugate(mounting.q_cam_body)))

@@ -198,7 +198,8 @@ def ours_offline_cpu_percent(inputs: list[tuple[int, str, Any]], flight_s: float
     from icgt.protocol import StreamDecoder, encode_frame
     from icgt.recorder import Recorder
     from icgt.recorder.config import RecorderConfig
-    from icgt.recorder.recorder import _DEVICE, _MAVLINK
+    from icgt.recorder.inbox import DEVICE as _DEVICE
+    from icgt.recorder.inbox import MAVLINK as _MAVLINK
     from icgt.recording import McapRecorder
 
     framed = [(t, k, encode_frame(x, i) if k == "device" else x) for i, (t, k, x) in enumerate(inputs, start=1)]
@@ -233,7 +234,7 @@ def flood_offline_us(tmp: Path, n: int = 30_000) -> float:
     from icgt.mavlink.link import LinkConfig, MavlinkLink
     from icgt.recorder import Recorder
     from icgt.recorder.config import RecorderConfig
-    from icgt.recorder.recorder import _MAVLINK
+    from icgt.recorder.inbox import MAVLINK as _MAVLINK
     from icgt.recording import McapRecorder
 
     frames = flood_frames()

@@ -27,7 +27,8 @@ from icgt.device.limits import (
 from icgt.mavlink.camera import CommandResult, HandlerResult
 from icgt.protocol.messages import Board, LidarModel, Limit
 from icgt.recorder.config import ConfigError, RecorderConfig, parse_config
-from icgt.recorder.recorder import Recorder, _CaptureHandler
+from icgt.recorder.capture_control import CaptureHandler
+from icgt.recorder.recorder import Recorder
 
 HEADER = Path(__file__).resolve().parents[2] / "firmware" / "lib" / "core" / "limits.hpp"
 
@@ -105,7 +106,7 @@ class _NoDevice:
 def _recorder(overrides: dict[str, Any]) -> tuple[Recorder, _NoDevice]:
     rec = Recorder(parse_config(overrides, "test.toml"))
     device = _NoDevice()
-    rec.device = device  # type: ignore[assignment]
+    rec.links.device = device  # type: ignore[assignment]
     return rec, device
 
 
@@ -114,7 +115,7 @@ def test_a_request_over_the_control_socket_names_the_limit(
     tmp_path: Path, overrides: dict[str, Any], interval_s: float | None, count: int, limit: Limit
 ) -> None:
     rec, device = _recorder(overrides)
-    server = ControlServer(tmp_path / "c.sock", rec._handle_control)
+    server = ControlServer(tmp_path / "c.sock", rec.control_requests.handle)
     server.start()
     try:
         with pytest.raises(ControlError, match=rf"limit {limit.name.lower()}\b"):
@@ -129,7 +130,7 @@ def test_a_ground_station_request_is_denied_with_the_limit(
     overrides: dict[str, Any], interval_s: float | None, count: int, limit: Limit
 ) -> None:
     rec, device = _recorder(overrides)
-    answer = _CaptureHandler(rec).start(interval_s or 0.0, count)
+    answer = CaptureHandler(rec.capture).start(interval_s or 0.0, count)
     assert isinstance(answer, HandlerResult)
     assert answer.result == CommandResult.DENIED
     assert answer.result_param2 == int(limit)

@@ -26,9 +26,9 @@ STEP_S = 0.05  # the worker's period is 100 ms; quicker here, as when frames are
 def _step_for(rec: Recorder, seconds: float) -> None:
     end = time.monotonic() + seconds
     while time.monotonic() < end:
-        with rec._step():
-            rec._drain(limit=None)
-            rec._work_once(time.monotonic_ns())
+        with rec.worker.step():
+            rec.worker.drain(limit=None)
+            rec.worker.work_once(time.monotonic_ns())
         time.sleep(STEP_S)
 
 
@@ -63,9 +63,9 @@ def test_one_outage_and_one_reboot_are_each_one_event_and_rates_are_asked_again(
         assert rec.camera is not None and rec.mavlink is not None
         rec.camera.stop()
         rec.mavlink.stop()
-        with rec._step():
-            rec._drain(limit=None)
-            rec._work_once(time.monotonic_ns())
+        with rec.worker.step():
+            rec.worker.drain(limit=None)
+            rec.worker.work_once(time.monotonic_ns())
         mcap.close()
     events = [d for _, d in read(path).messages(layout.LINK_EVENTS)]
     presence = [e for e in events if e["kind"].startswith("autopilot_") and e["kind"] != "autopilot_second_sender"]

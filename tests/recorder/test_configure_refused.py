@@ -63,7 +63,7 @@ def test_a_sensor_that_does_not_answer_is_switched_off_loudly(tmp_path: Path, ca
         with caplog.at_level(logging.WARNING, logger="icgt.recorder"):
             rec.start()
             rec.stop()
-    assert rec._sensors.imu_rate_hz == 0
+    assert rec.capture.sensors.imu_rate_hz == 0
     assert any(
         "limit imu_missing" in r.getMessage() and "recording without it" in r.getMessage() for r in caplog.records
     )

@@ -42,7 +42,7 @@ def _record(tmp: Path, name: str, feed) -> tuple[list[dict], dict[str, int]]:
     rec.log_file.mcap = mcap = McapRecorder(tmp / f"{name}.mcap")
     register_channels(mcap)
     feed(rec)
-    rec._drain(limit=None)
+    rec.worker.drain(limit=None)
     counters = rec.sync.counters()
     mcap.close()
     records = [d for _, d in read(tmp / f"{name}.mcap").messages(layout.MAVLINK_OTHER_SYSTEMS)]

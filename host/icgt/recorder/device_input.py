@@ -1,6 +1,6 @@
 """The device side of a recording: what the device link hands over, logged and fed to the synchroniser in order.
 
-`DeviceInput` takes each input of the device link from the worker's inbox (`icgt.recorder.recorder`): a device
+`DeviceInput` takes each input of the device link from the worker's inbox (`icgt.recorder.inbox`): a device
 message goes to its topic and to the synchroniser (an exposure is counted, the device's log lines go to the
 host's log and the live view, a DEVICE_STATE saying the device stopped capturing by itself is said once); a
 TIME_SYNC exchange is fed to the clock filter and written with its verdict; the link's own events go on

@@ -1,4 +1,4 @@
-"""The recorder's log file: its channels, the metadata written at start, and the writes of a worker step.
+"""The recorder's log file: its folder, its channels, the metadata written at start, and the writes of a worker step.
 
 `RecorderLog` owns the `McapRecorder` of one recording (and the Foxglove live view fed from it). Log times
 are host CLOCK_MONOTONIC plus one offset to UTC fixed at start (`log_time`), so the file is in log-time
@@ -33,9 +33,22 @@ from icgt.recording.writer import McapLogHandler
 from icgt.sync import SyncConfig
 from icgt.version import __version__
 
-__all__ = ["RecorderLog", "board_name", "device_metadata", "register_channels", "start_metadata"]
+__all__ = ["RecorderLog", "board_name", "device_metadata", "output_dir", "register_channels", "start_metadata"]
 
 log = logging.getLogger("icgt.recorder")
+
+
+def output_dir(path: Path) -> Path:
+    """The recordings folder, created if needed; RecordingError saying what is wrong with it otherwise."""
+    if path.exists() and not path.is_dir():
+        raise RecordingError(f"--out {path}: exists and is not a folder")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RecordingError(f"--out {path}: cannot create the folder: {exc.strerror or exc}") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise RecordingError(f"--out {path}: no permission to write in it")
+    return path
 
 
 def start_metadata(

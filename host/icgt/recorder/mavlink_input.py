@@ -1,6 +1,6 @@
 """The MAVLink side of a recording: what the link hands over, logged and fed to the synchroniser in order.
 
-`MavlinkInput` takes each input of the MAVLink link from the worker's inbox (`icgt.recorder.recorder`): a
+`MavlinkInput` takes each input of the MAVLink link from the worker's inbox (`icgt.recorder.inbox`): a
 message of the vehicle or of a ground station is written to its own topic, fed to the synchroniser, to the
 camera's image history and to the live views; other systems' frames (a shared network, a flood) are kept raw
 and written in batches, one record per drain of the inbox. TIMESYNC requests sent and the link's own events go
@@ -101,6 +101,11 @@ class MavlinkInput:
     def on_event(self, event: MavlinkEvent) -> None:
         # MavlinkLink logs the event itself (icgt.mavlink.link, also on /icgt/log); here it only goes on the topic.
         self._log.link_event("mavlink", event.kind.value, event.detail, event.host_ns, event.count)
+
+    def take_sync_events(self) -> None:
+        """The synchroniser's events since the last step, each on its way (`on_sync_event`)."""
+        for event in self._sync.take_events():
+            self.on_sync_event(event)
 
     def on_sync_event(self, event: SyncEvent) -> None:
         """A synchroniser event on /icgt/link_events, once. The autopilot's presence (seen / lost / back /

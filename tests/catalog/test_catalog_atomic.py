@@ -125,7 +125,7 @@ def test_an_add_in_progress_keeps_its_work_folder_while_another_add_publishes(
     dead = cat / ".staging" / "add-dead"
     dead.mkdir(parents=True)
     (dead / ".owner").write_text("")  # nobody holds its lock: a killed add's leftovers
-    with c._work_dir(5.0) as live:
+    with c.work_dir(5.0) as live:
         (live / "partial.parquet").write_bytes(b"x")
         fd = os.open(live / ".owner", os.O_RDWR)
         try:  # the live add holds its owner lock

@@ -29,17 +29,19 @@ def add_flight(
     images: Path | None = None,
     detections: list[Path] | None = None,
     wait_s: float | None = None,
+    compact_after: int | None = None,
 ) -> Any:
     """Add one flight to the catalogue at `root` (created if missing or empty); a catalogue this call created is
     removed again when the add fails, so a failed add leaves the folder as it was."""
-    from icgt.catalog.store import DEFAULT_WAIT_S, Catalog, check_structure
+    from icgt.catalog.store import COMPACT_AFTER, DEFAULT_WAIT_S, Catalog, check_structure
 
     check_structure(structure)
     existed = root.exists()
     try:
         cat = Catalog(root, create=True)
         return cat.add(log, structure, images=images, detections=detections or [],
-                       wait_s=DEFAULT_WAIT_S if wait_s is None else wait_s)  # fmt: skip
+                       wait_s=DEFAULT_WAIT_S if wait_s is None else wait_s,
+                       compact_after=COMPACT_AFTER if compact_after is None else compact_after)  # fmt: skip
     except BaseException:
         if not existed and root.is_dir():
             _remove_if_still_empty(root)
@@ -76,6 +78,20 @@ def cmd_add(args: argparse.Namespace) -> int:
         rows = ", ".join(f"{n} {k}" for k, n in result.rows.items())
         how = f"replaced revision {result.replaced}" if result.replaced else "added"
         print(f"{args.log}: {how} -> {result.path} (revision {result.revision}; {rows})")
+        if result.compacted:
+            print(f"{args.catalog}: {result.compacted} folders of {result.structure} compacted into {result.path.name}")
+    return 0
+
+
+def cmd_compact(args: argparse.Namespace) -> int:
+    from icgt.catalog.compact import compact
+
+    for r in compact(args.catalog, args.structure, target_bytes=int(args.target_mb * 1024 * 1024), wait_s=args.wait_s):
+        if r.merged:
+            print(f"{r.structure}: {r.merged} folders merged into groups; {r.flights} flights, "
+                  f"{r.files_before} files -> {r.files_after}")  # fmt: skip
+        else:
+            print(f"{r.structure}: nothing to compact ({r.flights} flights, {r.files_after} files)")
     return 0
 
 
@@ -152,7 +168,7 @@ def _json_rows(table: Any) -> list[dict[str, Any]]:
 
 
 def add_catalog_arguments(parser: argparse.ArgumentParser) -> None:
-    sub = parser.add_subparsers(dest="catalog_command", required=True, metavar="{add,query}")
+    sub = parser.add_subparsers(dest="catalog_command", required=True, metavar="{add,query,compact}")
     add = sub.add_parser("add", help="add a flight (log, card, detections) to the catalogue")
     add.add_argument("log", type=Path, help="the recording (.mcap)")
     add.add_argument("--structure", required=True, help="the structure inspected (a partition name)")
@@ -168,3 +184,9 @@ def add_catalog_arguments(parser: argparse.ArgumentParser) -> None:
     q.add_argument("--out", type=Path, help="write to this file instead of the terminal")
     q.add_argument("--max-rows", type=int, default=50, help="rows printed in table format (50)")
     q.set_defaults(func=cmd_query)
+    c = sub.add_parser("compact", help="merge each structure's per-flight files into a few larger ones")
+    c.add_argument("--catalog", type=Path, default=default_catalog(), help="the catalogue folder ($ICGT_CATALOG)")
+    c.add_argument("--structure", help="only this structure (default: every one)")
+    c.add_argument("--target-mb", type=float, default=256.0, help="a group's size to aim at [MiB] (256)")
+    c.add_argument("--wait-s", type=float, default=None, help="wait this long for an add's lock [s] (60)")
+    c.set_defaults(func=cmd_compact)

@@ -156,18 +156,16 @@ class Comparison:
 
 
 def _read(root: Path, structure: str, flight: str, table: str) -> list[dict[str, Any]]:
-    from icgt.catalog.store import Catalog, partition, read_table
+    from icgt.catalog.store import Catalog
 
     cat = Catalog(root)
-    path = partition(root, structure, flight) / f"{table}.parquet"
-    if not path.is_file():
-        known = sorted(
-            p.name.removeprefix("flight=") for p in cat.partitions() if p.parent.name == f"structure={structure}"
-        )
+    found = cat.read_flight(structure, flight, table)  # from its partition or the group it was compacted into
+    if found is None:
+        known = cat.flights(structure) if (root / f"structure={structure}").is_dir() else []
         raise CatalogError(
             f"{root}: no flight {flight!r} of structure {structure!r} (its flights: {', '.join(known) or 'none'})"
         )
-    rows: list[dict[str, Any]] = read_table(path).to_pylist()
+    rows: list[dict[str, Any]] = found.to_pylist()
     return rows
 
 

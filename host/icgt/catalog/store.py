@@ -5,6 +5,7 @@
     DIR/.staging/add-*/                            adds in progress, each flock'd by its add (a killed one's
                                                    leftovers are removed by the next add)
     DIR/structure=NAME/flight=ID/TABLE.parquet     the partitions, TABLE in flights frames images footprints defects
+    DIR/structure=NAME/group=GID/TABLE.parquet     several flights' partitions compacted into one (compact.py)
 
 A flight's tables are computed outside the lock (adds of several flights run in parallel); then, holding
 the lock, its partition is written whole into DIR/.staging, read back, and renamed into place: one rename, so a
@@ -12,7 +13,8 @@ reader (or a kill -9) sees the flight's old partition or its new one, never part
 replaced by a new revision of its flight is swapped in one step where the filesystem can (Linux
 renameat2 RENAME_EXCHANGE); elsewhere the old one is moved aside and the new one in, with a journal in
 .staging that the next add completes if it was interrupted between the two. Two adds at once: the
-second waits for the lock (`wait_s`), then is refused naming the holder.
+second waits for the lock (`wait_s`), then is refused naming the holder. A flight in a group (compact.py)
+is replaced by rebuilding its structure's folder: the group rewritten without it, its new partition beside.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -50,6 +53,8 @@ OWNER = ".owner"
 DEFAULT_CATALOG = Path("catalog")
 DEFAULT_WAIT_S = 60.0
 """How long an add waits for another add holding the catalogue's lock before it is refused [s]."""
+COMPACT_AFTER = 32
+"""An add compacts its structure once this many of its flights are in partitions of their own (compact.py)."""
 
 _FORBIDDEN = re.compile(r'[/\\\x00-\x1f\x7f:*?"<>|\[\]{}=]')
 
@@ -78,6 +83,9 @@ class AddResult:
     replaced: str | None
     rows: dict[str, int]
     path: Path
+    """the folder holding the flight: its partition, or the group the add compacted it into."""
+    compacted: int = 0
+    """folders this add compacted into groups (compact.py; 0: none)."""
 
 
 class Catalog:
@@ -140,18 +148,53 @@ class Catalog:
 
     # --- reading -------------------------------------------------------------------------------------
     def partitions(self) -> list[Path]:
+        """The folders of one flight each (`structure=*/flight=*`)."""
         return sorted(p for p in self.root.glob("structure=*/flight=*") if p.is_dir())
+
+    def groups(self) -> list[Path]:
+        """The folders of compacted flights (`structure=*/group=*`, compact.py)."""
+        return sorted(p for p in self.root.glob("structure=*/group=*") if p.is_dir())
+
+    def units(self) -> list[Path]:
+        """Every folder holding flights: partitions and groups."""
+        return sorted(self.partitions() + self.groups())
 
     def files(self, table: str) -> list[Path]:
         if table not in TABLES:
             raise CatalogError(f"no table {table!r}; tables: {', '.join(TABLES)}")
-        return [p / f"{table}.parquet" for p in self.partitions() if (p / f"{table}.parquet").is_file()]
+        return [p / f"{table}.parquet" for p in self.units() if (p / f"{table}.parquet").is_file()]
+
+    def locate(self, structure: str, flight: str) -> Path | None:
+        """The folder holding the flight (its partition, or the group it was compacted into), None if none."""
+        own = partition(self.root, structure, flight)
+        if (own / "flights.parquet").is_file():
+            return own
+        for group in sorted((self.root / f"structure={structure}").glob("group=*")):
+            path = group / "flights.parquet"
+            if path.is_file() and flight in read_table(path, columns=["flight"])["flight"].to_pylist():
+                return group
+        return None
+
+    def flights(self, structure: str) -> list[str]:
+        """The flight ids of a structure, sorted."""
+        out: list[str] = []
+        for unit in sorted((self.root / f"structure={structure}").glob("*=*")):
+            if (unit / "flights.parquet").is_file():
+                out += read_table(unit / "flights.parquet", columns=["flight"])["flight"].to_pylist()
+        return sorted(out)
+
+    def read_flight(self, structure: str, flight: str, table: str) -> pa.Table | None:
+        """One flight's rows of a table (from its partition or its group), None if the flight is not there."""
+        if table not in TABLES:
+            raise CatalogError(f"no table {table!r}; tables: {', '.join(TABLES)}")
+        unit = self.locate(structure, flight)
+        if unit is None:
+            return None
+        return read_table(unit / f"{table}.parquet", filters=[("flight", "=", flight)])
 
     def flight_row(self, structure: str, flight: str) -> dict[str, object] | None:
-        path = partition(self.root, structure, flight) / "flights.parquet"
-        if not path.is_file():
-            return None
-        rows = read_table(path).to_pylist()
+        t = self.read_flight(structure, flight, "flights")
+        rows = [] if t is None else t.to_pylist()
         return rows[0] if rows else None
 
     # --- writing -------------------------------------------------------------------------------------
@@ -220,8 +263,10 @@ class Catalog:
         images: Path | None = None,
         detections: Sequence[Path] = (),
         wait_s: float = DEFAULT_WAIT_S,
+        compact_after: int = COMPACT_AFTER,
     ) -> AddResult:
-        """Add one flight (see the module's doc); the catalogue is unchanged by any error."""
+        """Add one flight (see the module's doc); the catalogue is unchanged by any error. Once the structure
+        holds `compact_after` partitions (0: never), they are compacted into groups (compact.py)."""
         check_structure(structure)
         ident = identify(log_path, images=images, detections=detections)
         final = partition(self.root, structure, ident.flight)
@@ -230,7 +275,7 @@ class Catalog:
             return AddResult(structure, ident.flight, ident.revision, "unchanged", None, {}, final)
         # the work (reading the log, the matcher, the damage map) runs outside the lock, so adds of several
         # flights run in parallel; only the publication is one at a time
-        with self._work_dir(wait_s) as work:
+        with self.work_dir(wait_s) as work:
             tables = collect(log_path, structure, ident, detections=detections, work_dir=work)
             with self.locked(wait_s):
                 old = self.flight_row(structure, ident.flight)  # another add may have published it meanwhile
@@ -245,16 +290,27 @@ class Catalog:
                 final.parent.mkdir(parents=True, exist_ok=True)
                 if old is None:
                     os.rename(part, final)
-                else:
+                elif (final / "flights.parquet").is_file():
                     self._swap(final, part, work)
-                _fsync_dir(final.parent)
+                else:  # compacted into a group: the structure's folder rebuilt, the group without it
+                    from icgt.catalog.compact import rebuild
+
+                    rebuild(self, structure, work, replace=(ident.flight, part))
+                fsync_dir(final.parent)
+                merged = 0
+                if compact_after > 0 and len(list(final.parent.glob("flight=*"))) >= compact_after:
+                    from icgt.catalog.compact import compact_structure
+
+                    (work / "compact").mkdir()
+                    merged = compact_structure(self, structure, work / "compact").merged
+                    final = self.locate(structure, ident.flight) or final
         return AddResult(
             structure, ident.flight, ident.revision, "added" if old is None else "replaced",
-            None if old is None else str(old["revision"]), rows, final,
+            None if old is None else str(old["revision"]), rows, final, merged,
         )  # fmt: skip
 
     @contextmanager
-    def _work_dir(self, wait_s: float) -> Iterator[Path]:
+    def work_dir(self, wait_s: float) -> Iterator[Path]:
         """A private folder in .staging, flock'd by this add while it lives (so a concurrent add's recovery
         leaves it alone, and removes it once a kill -9 has released the lock); removed at the end. Made under
         the catalogue's lock, as recoveries run, so none sees it before its owner file is locked."""
@@ -275,7 +331,7 @@ class Catalog:
         old = work / "replaced"
         journal = self._staging() / f"replace-{uuid.uuid4().hex}.json"
         journal.write_text(json.dumps({"final": str(final), "new": str(new), "old": str(old)}))
-        _fsync_dir(journal.parent)
+        fsync_dir(journal.parent)
         os.rename(final, old)
         os.rename(new, final)
         journal.unlink()
@@ -306,18 +362,19 @@ def write_partition(folder: Path, tables: FlightTables) -> dict[str, int]:
         if back.num_rows != table.num_rows or back.schema.names != SCHEMAS[name].names:
             raise CatalogError(f"{path} does not read back as written")
         rows[name] = back.num_rows
-    _fsync_dir(folder)
+    fsync_dir(folder)
     return rows
 
 
-def read_table(path: Path) -> pa.Table:
-    """One catalogue file, its schema version checked (CatalogError naming both versions)."""
+def read_table(path: Path, **kwargs: Any) -> pa.Table:
+    """One catalogue file, its schema version checked (CatalogError naming both versions); kwargs: those of
+    pyarrow.parquet.read_table (columns, filters)."""
     try:
         meta = pq.read_metadata(path).metadata
     except (OSError, pa.ArrowException) as exc:
         raise CatalogError(f"{path}: not a readable Parquet file ({exc})") from None
     table_version(meta, str(path))
-    return pq.read_table(path)
+    return pq.read_table(path, **kwargs)
 
 
 def _alive(owner: Path) -> bool:
@@ -335,7 +392,7 @@ def _alive(owner: Path) -> bool:
     return False
 
 
-def _fsync_dir(path: Path) -> None:
+def fsync_dir(path: Path) -> None:
     fd = os.open(path, os.O_RDONLY)
     try:
         os.fsync(fd)

@@ -1,4 +1,5 @@
-"""The host's side of the device link: serial connection, handshake, commands, time sync."""
+"""The host's side of the device link: the transport (`link`, `port`), the protocol session over it (`session`), the
+device's limits (`limits`) and the recovery of what it missed (`resend`, `history`)."""
 
 from icgt.device.link import (
     CommandRefusedError,

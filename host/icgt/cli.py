@@ -297,6 +297,12 @@ def build_parser() -> argparse.ArgumentParser:
     add_regeotag_arguments(regeo)
     regeo.set_defaults(func=cmd_regeotag)
 
+    from icgt.ingest.calibrate_board import add_calibrate_board_arguments, cmd_calibrate_board
+
+    calib = sub.add_parser("calibrate-board", help="the board IMU's alignment and north from a calibration flight")
+    add_calibrate_board_arguments(calib)
+    calib.set_defaults(func=cmd_calibrate_board)
+
     from icgt.report import add_info_arguments, add_report_arguments, cmd_info, cmd_report
 
     report = sub.add_parser("report", help="the flight report: one self-contained HTML page")

@@ -27,6 +27,7 @@ import synth_logs as sl
 from conftest import SynthFlight, make_flight
 
 from icgt.catalog.cli import add_flight
+from icgt.catalog.compact import compact
 from icgt.catalog.schema import TABLES
 from icgt.catalog.store import Catalog
 
@@ -45,20 +46,30 @@ def gdal(path: Path) -> tuple[str, dict[str, str]]:
     return f"ADBC:{path}", {"ADBC_DRIVER": duckdb_adbc_driver()}
 
 
-@pytest.fixture(scope="module")
-def catalogue(flight_a: SynthFlight, flight_b: SynthFlight, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Two structures, three flights, with cards and detections: every table has rows, frames some without pose."""
+@pytest.fixture(scope="module", params=["per flight", "compacted"])
+def catalogue(
+    request: pytest.FixtureRequest,
+    flight_a: SynthFlight,
+    flight_b: SynthFlight,
+    tmp_path_factory: pytest.TempPathFactory,
+) -> Path:
+    """Two structures, three flights, with cards and detections: every table has rows, frames some without pose;
+    each flight in its own files, or (compacted) pier-7's two flights in one group's files (compact.py)."""
     root = tmp_path_factory.mktemp("gdal")
     other = make_flight(root / "c", sl.Synth(n=12, seed=9, serial="5550001", recording_id=0x51))
     cat = root / "cat"
     for f, structure in ((flight_a, "pier-7"), (flight_b, "pier-7"), (other, "bridge-2")):
         add_flight(cat, f.log, structure, images=f.card, detections=[f.detections])
+    if request.param == "compacted":
+        assert [r.merged for r in compact(cat)] == [0, 2]
     return cat
 
 
 def _files(cat: Path) -> list[tuple[str, Path]]:
     files = [(table, p) for table in TABLES for p in Catalog(cat).files(table)]
-    assert len(files) == 3 * len(TABLES)  # every table of every flight
+    folders = len(Catalog(cat).units())  # every table of every flight's folder: 3 flights, or a group and 1
+    assert len(files) == folders * len(TABLES) and folders in (2, 3)
+    assert all(pq.read_metadata(p).num_rows > 0 for _, p in files)
     return files
 
 

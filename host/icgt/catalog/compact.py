@@ -1,8 +1,10 @@
 """Compaction: a structure's small per-flight files merged into a few larger GeoParquet files.
 
     DIR/structure=NAME/flight=ID/TABLE.parquet     one flight, as `add` wrote it
-    DIR/structure=NAME/group=GID/TABLE.parquet     several flights, one row group (or more) per flight in
-                                                   flight order; GID is a content id of its flights' revisions
+    DIR/structure=NAME/group-GID/TABLE.parquet     several flights, in flight order; GID is a content id of its
+                                                   flights' revisions (no `=` in the name: readers that infer
+                                                   hive partitions from the path, DuckDB's and GDAL's, would
+                                                   add a column `group`)
 
 A query pays about 0.4 ms for every Parquet file it opens, so a catalogue of one file per flight per table
 answers slower the more flights it holds; a group file holds many flights at the cost of one file. Every
@@ -11,7 +13,7 @@ covering column, the `geo` extent over its flights, the schema version), so GDAL
 a group's file as they read a flight's, and a flight is read from it by its `flight` column (the row groups'
 statistics let readers skip the others).
 
-A flight lives in exactly one folder of its structure, a `flight=` or a `group=` one. Compaction and the
+A flight lives in exactly one folder of its structure, a `flight=` or a `group-` one. Compaction and the
 replacement of a flight that is in a group change several folders of a structure at once, so they build
 the structure's new folder whole in .staging (the folders that stay as hard links of their files, the new
 groups written, fsynced and read back), check that it holds every flight of the old one exactly once with
@@ -59,7 +61,7 @@ class CompactResult:
     flights: int
     """flights in the structure (each still there once)."""
     merged: int
-    """folders (flight= and group=) merged into new groups; 0: nothing to do."""
+    """folders (flight= and group-) merged into new groups; 0: nothing to do."""
     groups: tuple[Path, ...]
     """the structure's group folders after compaction."""
     files_before: int
@@ -85,7 +87,7 @@ def index(units: Iterable[Path]) -> dict[str, tuple[str, Path]]:
 
 def structure_units(cat: Catalog, structure: str) -> list[Path]:
     folder = cat.root / f"structure={structure}"
-    return sorted(p for p in folder.glob("*=*") if p.is_dir() and p.name.split("=")[0] in ("flight", "group"))
+    return structure_units_of(folder) if folder.is_dir() else []
 
 
 def _counts(units: Iterable[Path], exclude: str | None = None) -> Counts:
@@ -138,7 +140,7 @@ def _extent(table: pa.Table) -> list[float] | None:
 
 def group_name(flights: dict[str, str]) -> str:
     digest = hashlib.sha256("\n".join(f"{f} {r}" for f, r in sorted(flights.items())).encode()).hexdigest()
-    return f"group={digest[:16]}"
+    return f"group-{digest[:16]}"
 
 
 def _link_unit(unit: Path, dest: Path) -> None:
@@ -214,7 +216,7 @@ def rebuild(
 
 
 def structure_units_of(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.iterdir() if p.is_dir() and p.name.split("=")[0] in ("flight", "group"))
+    return sorted(p for p in folder.iterdir() if p.is_dir() and p.name.startswith(("flight=", "group-")))
 
 
 def _size(unit: Path) -> int:
@@ -253,7 +255,7 @@ def compact_structure(cat: Catalog, structure: str, work: Path, target_bytes: in
     after = structure_units(cat, structure)
     return CompactResult(
         structure, len(index(after)), sum(len(g) for g in groups),
-        tuple(u for u in after if u.name.startswith("group=")), files_before,
+        tuple(u for u in after if u.name.startswith("group-")), files_before,
         sum(len(list(u.glob("*.parquet"))) for u in after),
     )  # fmt: skip
 

@@ -97,7 +97,9 @@ def connect(root: Path | str) -> duckdb.DuckDBPyConnection:
             listing = ", ".join(f"'{_sql_str(str(p))}'" for p in files)
             # one declared schema per version, and every partition's version is checked above: the files'
             # columns are the same, so no union_by_name (which reads every file's schema at each query)
-            source = f"read_parquet([{listing}])"
+            # and no hive partitioning: structure and flight are columns of every file, and a group's folder
+            # (compact.py) is no partition key
+            source = f"read_parquet([{listing}], hive_partitioning = false)"
         else:
             con.register(f"_empty_{table}", SCHEMAS[table].empty_table())
             source = f"_empty_{table}"

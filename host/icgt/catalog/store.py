@@ -5,7 +5,7 @@
     DIR/.staging/add-*/                            adds in progress, each flock'd by its add (a killed one's
                                                    leftovers are removed by the next add)
     DIR/structure=NAME/flight=ID/TABLE.parquet     the partitions, TABLE in flights frames images footprints defects
-    DIR/structure=NAME/group=GID/TABLE.parquet     several flights' partitions compacted into one (compact.py)
+    DIR/structure=NAME/group-GID/TABLE.parquet     several flights' partitions compacted into one (compact.py)
 
 A flight's tables are computed outside the lock (adds of several flights run in parallel); then, holding
 the lock, its partition is written whole into DIR/.staging, read back, and renamed into place: one rename, so a
@@ -152,8 +152,8 @@ class Catalog:
         return sorted(p for p in self.root.glob("structure=*/flight=*") if p.is_dir())
 
     def groups(self) -> list[Path]:
-        """The folders of compacted flights (`structure=*/group=*`, compact.py)."""
-        return sorted(p for p in self.root.glob("structure=*/group=*") if p.is_dir())
+        """The folders of compacted flights (`structure=*/group-*`, compact.py)."""
+        return sorted(p for p in self.root.glob("structure=*/group-*") if p.is_dir())
 
     def units(self) -> list[Path]:
         """Every folder holding flights: partitions and groups."""
@@ -169,7 +169,7 @@ class Catalog:
         own = partition(self.root, structure, flight)
         if (own / "flights.parquet").is_file():
             return own
-        for group in sorted((self.root / f"structure={structure}").glob("group=*")):
+        for group in sorted((self.root / f"structure={structure}").glob("group-*")):
             path = group / "flights.parquet"
             if path.is_file() and flight in read_table(path, columns=["flight"])["flight"].to_pylist():
                 return group
@@ -178,7 +178,8 @@ class Catalog:
     def flights(self, structure: str) -> list[str]:
         """The flight ids of a structure, sorted."""
         out: list[str] = []
-        for unit in sorted((self.root / f"structure={structure}").glob("*=*")):
+        folder = self.root / f"structure={structure}"
+        for unit in sorted(p for p in folder.glob("*") if p.name.startswith(("flight=", "group-"))):
             if (unit / "flights.parquet").is_file():
                 out += read_table(unit / "flights.parquet", columns=["flight"])["flight"].to_pylist()
         return sorted(out)

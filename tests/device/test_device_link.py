@@ -37,7 +37,7 @@ from typing import Any
 import pytest
 from cobs import cobs
 
-from icgt.device.link import CommandRefusedError, DeviceLink, DeviceLinkError, DeviceLinkEvent, TimeSyncSample
+from icgt.device import CommandRefusedError, DeviceLink, DeviceLinkError, DeviceLinkEvent, TimeSyncSample
 from icgt.errors import VersionMismatchError
 from icgt.protocol import PROTOCOL_VERSION, TABLE_HASH, Received, StreamDecoder, encode_frame
 from icgt.protocol.messages import (

@@ -26,8 +26,8 @@ from icgt.device.limits import (
 )
 from icgt.mavlink.camera import CommandResult, HandlerResult
 from icgt.protocol.messages import Board, LidarModel, Limit
-from icgt.recorder.config import ConfigError, RecorderConfig, parse_config
 from icgt.recorder.capture_control import CaptureHandler
+from icgt.recorder.config import ConfigError, RecorderConfig, parse_config
 from icgt.recorder.recorder import Recorder
 
 HEADER = Path(__file__).resolve().parents[2] / "firmware" / "lib" / "core" / "limits.hpp"

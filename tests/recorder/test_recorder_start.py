@@ -10,7 +10,8 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from icgt.device import DeviceAbsentError, DeviceBusyError, DeviceLink
+from icgt.device import DeviceAbsentError, DeviceBusyError
+from icgt.device.port import open_port
 from icgt.recorder import Recorder, RecorderConfig
 from icgt.recording import RecordingError
 
@@ -64,12 +65,10 @@ def test_a_port_held_by_another_program_is_a_clear_error(tmp_path: Path) -> None
     master, slave = os.openpty()
     try:
         path = os.ttyname(slave)
-        first = DeviceLink(path, on_message=lambda *_: None, on_event=lambda _: None, on_time_sync=lambda _: None)
-        port = first._open()  # holds the port's exclusive lock, as a running recorder does
+        port = open_port(path, 115200)  # holds the port's exclusive lock, as a running recorder does
         try:
-            second = DeviceLink(path, on_message=lambda *_: None, on_event=lambda _: None, on_time_sync=lambda _: None)
             with pytest.raises(DeviceBusyError, match=f"device {path} is in use"):
-                second._open()
+                open_port(path, 115200)
         finally:
             port.close()
     finally:

@@ -19,33 +19,14 @@ import time
 
 import serial
 
-from icgt.device.link_types import (
-    CommandRefusedError,
-    DeviceAbsentError,
-    DeviceBusyError,
-    DeviceLinkError,
-    DeviceLinkEvent,
-    EventCallback,
-    MessageCallback,
-    TimeSyncCallback,
-    TimeSyncSample,
-)
-from icgt.device.port import open_port, port_fd, port_holders, read_chunk
+from icgt.device.link_types import DeviceLinkError, DeviceLinkEvent, EventCallback, MessageCallback, TimeSyncCallback
+from icgt.device.port import open_port, port_fd, read_chunk
 from icgt.device.resend import ResendTracker
 from icgt.device.session import COMMAND_TIMEOUT_S, DeviceSession, Pending
 from icgt.protocol import encode_frame
 from icgt.protocol.messages import Ack, DeviceState, Hello, Message, Ping, TimeSync
 
-__all__ = [
-    "CommandRefusedError",
-    "DeviceAbsentError",
-    "DeviceBusyError",
-    "DeviceLink",
-    "DeviceLinkError",
-    "DeviceLinkEvent",
-    "TimeSyncSample",
-    "port_holders",
-]
+__all__ = ["DeviceLink"]
 
 REOPEN_INTERVAL_S = 0.2
 PROMPT_WINDOW_NS = 100_000_000

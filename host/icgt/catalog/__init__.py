@@ -9,7 +9,8 @@ GeoParquet 1.1 tables (schema.py) into the flight's partition ``DIR/structure=NA
 
 Modules: `schema` (the declared tables, their units and the GeoParquet metadata), `collect` (the rows of
 one flight from the project's readers), `store` (the catalogue folder: marker, lock, staging, atomic
-publication, history), `query` (DuckDB with its spatial extension, Arrow out), `cli` (the commands).
+publication, history), `compact` (a structure's flight folders merged into group files), `query`
+(DuckDB with its spatial extension, Arrow out), `cli` (the commands).
 """
 
 from icgt.errors import IcgtError

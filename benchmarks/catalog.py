@@ -43,8 +43,8 @@ import synth_logs as sl  # noqa: E402
 
 import icgt  # noqa: E402
 from icgt.catalog.cli import add_flight  # noqa: E402
-from icgt.catalog.compact import compact  # noqa: E402
 from icgt.catalog.query import connect, query  # noqa: E402
+from icgt.catalog.store import compact  # noqa: E402
 from icgt.geodesy import LocalFrame  # noqa: E402
 
 RADIUS_M = 5.0

@@ -170,7 +170,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
     flights = [resolve(Path(a)) for a in args.flights]
     params: dict[str, Any] = {}
     if args.kind == "catalog-add":
-        from icgt.catalog.store import check_structure
+        from icgt.catalog.files import check_structure
 
         if args.structure is None:
             raise BatchError("catalog-add needs --structure NAME")

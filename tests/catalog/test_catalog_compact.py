@@ -22,7 +22,7 @@ import synth_logs as sl
 from conftest import SynthFlight, make_flight, snapshot
 from test_catalog_gdal import gdal
 
-from icgt.catalog import CatalogError, compact
+from icgt.catalog import CatalogError, compact, store
 from icgt.catalog.cli import add_flight
 from icgt.catalog.query import query
 from icgt.catalog.schema import TABLES
@@ -67,7 +67,7 @@ def _copy(src: Path, dst: Path) -> Path:
 def test_compaction_merges_a_structure_and_every_reader_reads_the_group(three: Path, tmp_path: Path) -> None:
     cat = _copy(three, tmp_path / "cat")
     before = _views(cat)
-    results = {r.structure: r for r in compact.compact(cat)}
+    results = {r.structure: r for r in store.compact(cat)}
     # pier-7's three partitions are one group; bridge-2's single partition is left (a group of one gains nothing)
     assert results["pier-7"].merged == 3 and results["pier-7"].files_before == 15
     assert results["pier-7"].files_after == 5 and results["pier-7"].flights == 3
@@ -108,14 +108,14 @@ def test_compaction_merges_a_structure_and_every_reader_reads_the_group(three: P
         assert sorted(got.to_pylist(), key=lambda r: r["frame_seq"]) == want
     # compacting again changes nothing
     snap = snapshot(cat)
-    assert all(r.merged == 0 for r in compact.compact(cat)) and snapshot(cat) == snap
+    assert all(r.merged == 0 for r in store.compact(cat)) and snapshot(cat) == snap
 
 
 def test_a_compacted_flight_is_unchanged_by_the_same_log_and_replaced_by_a_new_revision(
     three: Path, flight_a: SynthFlight, tmp_path: Path
 ) -> None:
     cat = _copy(three, tmp_path / "cat")
-    compact.compact(cat)
+    store.compact(cat)
     snap = snapshot(cat)
     same = add_flight(cat, flight_a.log, "pier-7", images=flight_a.card, detections=[flight_a.detections])
     assert same.status == "unchanged" and snapshot(cat) == snap
@@ -138,7 +138,7 @@ def test_a_compacted_flight_is_unchanged_by_the_same_log_and_replaced_by_a_new_r
     n = query(cat, f"SELECT count(*) AS n FROM frames WHERE flight = '{res.flight}'").to_pylist()[0]["n"]
     assert n == len(moved.frames)
     # and back into a group, then replaced again: the history grows, the flight still once
-    compact.compact(cat, "pier-7")
+    store.compact(cat, "pier-7")
     assert cats.partitions() == [p for p in cats.partitions() if "bridge-2" in str(p)]
     again = add_flight(cat, flight_a.log, "pier-7")
     assert again.status == "replaced"
@@ -190,7 +190,7 @@ def test_a_failed_check_leaves_the_structure_as_it_was(
 
     monkeypatch.setattr(compact, "write_group", loses_a_flight)
     with pytest.raises(CatalogError, match=r"the rebuilt structure folder differs .*missing"):
-        compact.compact(cat, "pier-7")
+        store.compact(cat, "pier-7")
     assert snapshot(cat) == snap and not any((cat / ".staging").iterdir())
 
 
@@ -240,7 +240,7 @@ def test_kill_9_in_the_middle_of_a_compaction_leaves_the_old_folder_or_the_new(b
             break
     assert killed >= 1
     # the next compaction clears what the killed ones left and lands whole, every row once
-    compact.compact(cat)
+    store.compact(cat)
     assert not any(staging.iterdir()) and len(Catalog(cat).groups()) == 1 and Catalog(cat).partitions() == []
     assert _views(cat) == before_views
 

@@ -27,9 +27,8 @@ import synth_logs as sl
 from conftest import SynthFlight, make_flight
 
 from icgt.catalog.cli import add_flight
-from icgt.catalog.compact import compact
 from icgt.catalog.schema import TABLES
-from icgt.catalog.store import Catalog
+from icgt.catalog.store import Catalog, compact
 
 GEOARROW_WKB = b"geoarrow.wkb"
 

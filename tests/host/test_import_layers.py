@@ -18,7 +18,14 @@ ROOT = Path(__file__).resolve().parents[2] / "host" / "icgt"
 
 POST_FLIGHT = {"export", "report", "mapping", "trajectories", "ingest", "geometry", "catalog", "detect"}
 """Packages that work on a finished log: they read recordings, never the live side."""
-LIVE = ("icgt.recorder", "icgt.control", "icgt.mavlink.link", "icgt.device.link")
+LIVE = (
+    "icgt.recorder",
+    "icgt.control",
+    "icgt.mavlink.link",
+    "icgt.device.link",
+    "icgt.device.session",
+    "icgt.device.port",
+)
 """The live recorder and its transports."""
 CORE = {"geotag", "sync", "clocks", "pose", "geodesy"}
 """The I/O-free core that the recorder and the offline recompute both feed: one thread, no transport."""

@@ -33,7 +33,8 @@ def add_flight(
 ) -> Any:
     """Add one flight to the catalogue at `root` (created if missing or empty); a catalogue this call created is
     removed again when the add fails, so a failed add leaves the folder as it was."""
-    from icgt.catalog.store import COMPACT_AFTER, DEFAULT_WAIT_S, Catalog, check_structure
+    from icgt.catalog.files import check_structure
+    from icgt.catalog.store import COMPACT_AFTER, DEFAULT_WAIT_S, Catalog
 
     check_structure(structure)
     existed = root.exists()
@@ -84,7 +85,7 @@ def cmd_add(args: argparse.Namespace) -> int:
 
 
 def cmd_compact(args: argparse.Namespace) -> int:
-    from icgt.catalog.compact import compact
+    from icgt.catalog.store import compact
 
     for r in compact(args.catalog, args.structure, target_bytes=int(args.target_mb * 1024 * 1024), wait_s=args.wait_s):
         if r.merged:

@@ -35,14 +35,18 @@ from collections import Counter
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from icgt.catalog import CatalogError
+from icgt.catalog.files import fsync_dir, read_table
 from icgt.catalog.schema import SCHEMA_VERSION, SCHEMAS, TABLES, file_metadata, table_version
-from icgt.catalog.store import Catalog, check_structure, fsync_dir, read_table
+
+if TYPE_CHECKING:
+    from icgt.catalog.store import Catalog
 
 ROW_GROUP_ROWS = 65536
 """Rows per row group of a group's file: its flights in order, so a flight is in one or two row groups (the
@@ -258,27 +262,3 @@ def compact_structure(cat: Catalog, structure: str, work: Path, target_bytes: in
         tuple(u for u in after if u.name.startswith("group-")), files_before,
         sum(len(list(u.glob("*.parquet"))) for u in after),
     )  # fmt: skip
-
-
-def compact(
-    root: Path, structure: str | None = None, *, target_bytes: int = TARGET_BYTES, wait_s: float | None = None
-) -> list[CompactResult]:
-    """Compact every structure of the catalogue at `root` (or the one named)."""
-    from icgt.catalog.store import DEFAULT_WAIT_S
-
-    cat = Catalog(root)
-    if structure is not None:
-        check_structure(structure)
-        if not (root / f"structure={structure}").is_dir():
-            known = sorted(p.name.removeprefix("structure=") for p in root.glob("structure=*"))
-            raise CatalogError(f"{root}: no structure {structure!r} (its structures: {', '.join(known) or 'none'})")
-    wait = DEFAULT_WAIT_S if wait_s is None else wait_s
-    out = []
-    with cat.work_dir(wait) as work, cat.locked(wait):
-        every = sorted(p.name.removeprefix("structure=") for p in root.glob("structure=*") if p.is_dir())
-        names = [structure] if structure else every
-        for i, name in enumerate(names):
-            sub = work / f"s{i}"
-            sub.mkdir()
-            out.append(compact_structure(cat, name, sub, target_bytes))
-    return out

@@ -162,7 +162,7 @@ def run_compare(root: Path, structure: str, before: str, after: str, out: Path, 
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from icgt.catalog.store import check_structure
+    from icgt.catalog.files import check_structure
 
     check_structure(args.structure)
     out = args.out or Path(f"compare-{args.before}-{args.after}")

@@ -26,7 +26,6 @@ import fcntl
 import json
 import logging
 import os
-import re
 import shutil
 import time
 import uuid
@@ -34,14 +33,15 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 from icgt.catalog import CatalogError
 from icgt.catalog.collect import FlightTables, collect, identify
-from icgt.catalog.schema import SCHEMA_VERSION, SCHEMAS, TABLES, check_version, table_version
+from icgt.catalog.compact import TARGET_BYTES, CompactResult, compact_structure, rebuild
+from icgt.catalog.files import check_structure, fsync_dir, read_table
+from icgt.catalog.schema import SCHEMA_VERSION, SCHEMAS, TABLES, check_version
 
 log = logging.getLogger(__name__)
 
@@ -55,18 +55,6 @@ DEFAULT_WAIT_S = 60.0
 """How long an add waits for another add holding the catalogue's lock before it is refused [s]."""
 COMPACT_AFTER = 32
 """An add compacts its structure once this many of its flights are in partitions of their own (compact.py)."""
-
-_FORBIDDEN = re.compile(r'[/\\\x00-\x1f\x7f:*?"<>|\[\]{}=]')
-
-
-def check_structure(name: str) -> str:
-    """The structure name if it can name a partition folder as it is; CatalogError saying why not."""
-    if not name or name.strip() != name or name.startswith(".") or len(name) > 128 or _FORBIDDEN.search(name):
-        raise CatalogError(
-            f"--structure {name!r}: a structure name is 1-128 characters without path or glob characters "
-            '(/ \\ : * ? " < > | [ ] { } =), control characters, a leading dot or surrounding spaces'
-        )
-    return name
 
 
 def partition(root: Path, structure: str, flight: str) -> Path:
@@ -294,14 +282,10 @@ class Catalog:
                 elif (final / "flights.parquet").is_file():
                     self._swap(final, part, work)
                 else:  # compacted into a group: the structure's folder rebuilt, the group without it
-                    from icgt.catalog.compact import rebuild
-
                     rebuild(self, structure, work, replace=(ident.flight, part))
                 fsync_dir(final.parent)
                 merged = 0
                 if compact_after > 0 and len(list(final.parent.glob("flight=*"))) >= compact_after:
-                    from icgt.catalog.compact import compact_structure
-
                     (work / "compact").mkdir()
                     merged = compact_structure(self, structure, work / "compact").merged
                     final = self.locate(structure, ident.flight) or final
@@ -367,17 +351,6 @@ def write_partition(folder: Path, tables: FlightTables) -> dict[str, int]:
     return rows
 
 
-def read_table(path: Path, **kwargs: Any) -> pa.Table:
-    """One catalogue file, its schema version checked (CatalogError naming both versions); kwargs: those of
-    pyarrow.parquet.read_table (columns, filters)."""
-    try:
-        meta = pq.read_metadata(path).metadata
-    except (OSError, pa.ArrowException) as exc:
-        raise CatalogError(f"{path}: not a readable Parquet file ({exc})") from None
-    table_version(meta, str(path))
-    return pq.read_table(path, **kwargs)
-
-
 def _alive(owner: Path) -> bool:
     """Whether the add that made a work folder still holds its owner file's lock."""
     try:
@@ -391,14 +364,6 @@ def _alive(owner: Path) -> bool:
     finally:
         os.close(fd)  # releases it again if it was taken
     return False
-
-
-def fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 _RENAME_EXCHANGE = 2
@@ -424,3 +389,25 @@ def _exchange(a: Path, b: Path) -> bool:
     if err in (errno.EINVAL, errno.ENOSYS, errno.ENOTSUP):
         return False
     raise CatalogError(f"cannot replace {b}: {os.strerror(err)}")
+
+
+def compact(
+    root: Path, structure: str | None = None, *, target_bytes: int = TARGET_BYTES, wait_s: float | None = None
+) -> list[CompactResult]:
+    """Compact every structure of the catalogue at `root` (or the one named)."""
+    cat = Catalog(root)
+    if structure is not None:
+        check_structure(structure)
+        if not (root / f"structure={structure}").is_dir():
+            known = sorted(p.name.removeprefix("structure=") for p in root.glob("structure=*"))
+            raise CatalogError(f"{root}: no structure {structure!r} (its structures: {', '.join(known) or 'none'})")
+    wait = DEFAULT_WAIT_S if wait_s is None else wait_s
+    out = []
+    with cat.work_dir(wait) as work, cat.locked(wait):
+        every = sorted(p.name.removeprefix("structure=") for p in root.glob("structure=*") if p.is_dir())
+        names = [structure] if structure else every
+        for i, name in enumerate(names):
+            sub = work / f"s{i}"
+            sub.mkdir()
+            out.append(compact_structure(cat, name, sub, target_bytes))
+    return out

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+from test_gimbal import DEV_TO_HOST_NS, HOST_TO_BOOT_US, MID_DEVICE_US, FixedClocks, S  # the same fixed clocks
 
 from icgt.geodesy import q_conjugate, q_from_euler_zyx, q_multiply, q_rotate
 from icgt.geotag.board_imu import right_axis_heading_rad
@@ -27,39 +28,10 @@ from icgt.pose import Q_OPTICAL_TO_FRD, camera_to_body_quaternion
 from icgt.protocol.messages import Exposure, Imu
 
 AP = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
-S = 1_000_000_000
-DEV_TO_HOST_NS = 5 * S  # host_ns = device_us * 1000 + 5 s
-HOST_TO_BOOT_US = 2_000_000  # autopilot boot_us = host_ns / 1000 - 2 s
-MID_DEVICE_US = 10_045_000
 DEVICE_TO_BOOT_US = DEV_TO_HOST_NS // 1000 - HOST_TO_BOOT_US  # 3 s
 BNO_OFF_DEG = 20.0  # true north minus the BNO's north
 MOUNT = {"mount_roll_deg": 2.0, "mount_pitch_deg": -1.0, "mount_yaw_deg": 4.0}  # the camera on the board
 BODY_YAW_DEG = 90.0  # the vehicle heads east; the gimbal follows it
-
-
-class _Clocks:
-    settled = True
-
-    def device_to_host_ns(self, device_us: float) -> int:
-        return round(device_us * 1000) + DEV_TO_HOST_NS
-
-    def host_to_device_us(self, host_ns: int) -> float:
-        return (host_ns - DEV_TO_HOST_NS) / 1000
-
-    def uncertainty_ns(self, device_us: float) -> int:
-        return 20_000
-
-    def host_to_autopilot_us(self, host_ns: int) -> float:
-        return host_ns / 1000 - HOST_TO_BOOT_US
-
-    def method(self) -> str:
-        return "timesync"
-
-    def uncertainty_us(self, boot_us: float) -> float:
-        return 300.0
-
-    def utc_at(self, device_us: float, host_ns: int) -> None:
-        return None
 
 
 def wire(msg: Any) -> Any:
@@ -91,7 +63,7 @@ def frame_with(bno: Callable[[int], np.ndarray | None], *, yawspeed_rps: float =
     quaternion; a level body heading east at 20 Hz over the same span."""
     store = TelemetryStore()
     out: list[FrameRecord] = []
-    clocks = _Clocks()
+    clocks = FixedClocks()
     cfg = GeotagConfig(origin=(47.4, 8.5, 500.0), attitude_source="board_imu", **MOUNT, **config)
     gt = Geotagger(store, clocks, clocks, clocks, cfg, out.append)
     q_body = [float(c) for c in q_from_euler_zyx(0.0, 0.0, math.radians(BODY_YAW_DEG))]

@@ -51,7 +51,7 @@ def axis_ned(pitch_deg: float, yaw_deg: float) -> np.ndarray:
     return np.array([math.cos(p) * math.cos(y), math.cos(p) * math.sin(y), -math.sin(p)])
 
 
-class _Clocks:
+class FixedClocks:
     """Fixed offsets (device -> host 5 s, host -> autopilot -2 s) with small bounds; UTC unknown."""
 
     settled = True
@@ -82,7 +82,7 @@ def frame_with(gimbal: list[tuple[int, mavlink2.MAVLink_message]], body_yaw_deg:
     """One exposure at mid boot 13.045 s, level body at ``body_yaw_deg``, the gimbal reports given (boot us)."""
     store = TelemetryStore()
     out: list[FrameRecord] = []
-    clocks = _Clocks()
+    clocks = FixedClocks()
     cfg = GeotagConfig(origin=(47.4, 8.5, 500.0), attitude_source="gimbal")
     gt = Geotagger(store, clocks, clocks, clocks, cfg, out.append)
     q_body = [float(c) for c in q_from_euler_zyx(0.0, 0.0, math.radians(body_yaw_deg))]

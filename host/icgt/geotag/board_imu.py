@@ -35,7 +35,7 @@ from icgt.mavlink.telemetry import AttitudeSample
 from icgt.mavlink.telemetry_buffer import TelemetryBuffer
 from icgt.protocol.messages import Imu
 
-__all__ = ["HeadingWindow", "board_at", "camera_from_board", "heading_offset_rad", "right_axis_heading_rad"]
+__all__ = ["HeadingWindow", "board_at", "board_in_ned", "heading_offset_rad", "right_axis_heading_rad"]
 
 _MAX_ATTITUDE_GAP_US = 250_000  # autopilot attitude samples farther apart are not read for the heading
 
@@ -75,7 +75,7 @@ def _unit(q: tuple[float, float, float, float]) -> bool:
     return abs(math.sqrt(sum(c * c for c in q)) - 1.0) < 0.05
 
 
-def camera_from_board(q_bno: Any, heading_offset: float) -> np.ndarray:
+def board_in_ned(q_bno: Any, heading_offset: float) -> np.ndarray:
     """The board's sensor axes -> NED: the BNO's attitude turned by ``heading_offset`` [rad] about down."""
     return np.asarray(q_multiply(q_from_euler_zyx(0.0, 0.0, heading_offset), q_bno), dtype=float)
 

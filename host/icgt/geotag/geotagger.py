@@ -21,7 +21,7 @@ import numpy as np
 from icgt.errors import IcgtError
 from icgt.geodesy import LocalFrame, q_slerp, q_to_euler_zyx
 from icgt.geotag import parts
-from icgt.geotag.board_imu import HeadingWindow, board_at, camera_from_board, heading_offset_rad
+from icgt.geotag.board_imu import HeadingWindow, board_at, board_in_ned, heading_offset_rad
 from icgt.geotag.bounds import MotionAllowance
 from icgt.geotag.config import GeotagConfig
 from icgt.geotag.gimbal_pose import gimbal_at
@@ -395,7 +395,7 @@ class Geotagger:
         if offset is None:
             flags.append(FrameFlag.BOARD_IMU_NO_HEADING.value)
             return None
-        return camera_from_board(q_bno, offset)
+        return board_in_ned(q_bno, offset)
 
     def _device_to_boot_us(self, device_us: float) -> float | None:
         try:
@@ -404,7 +404,8 @@ class Geotagger:
             return None
 
     def _dev_us(self, host_ns: int) -> float:
-        """A host instant on the device clock (the arrival time before the first exchange: the frame waits)."""
+        """A host instant on the device clock; infinity before the first exchange (the frame waits, up to its
+        wait limit)."""
         try:
             return self._dev.host_to_device_us(host_ns)
         except IcgtError:

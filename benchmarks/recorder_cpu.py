@@ -200,13 +200,14 @@ def ours_offline_cpu_percent(inputs: list[tuple[int, str, Any]], flight_s: float
     from icgt.recorder.config import RecorderConfig
     from icgt.recorder.inbox import DEVICE as _DEVICE
     from icgt.recorder.inbox import MAVLINK as _MAVLINK
+    from icgt.recorder.log_file import register_channels
     from icgt.recording import McapRecorder
 
     framed = [(t, k, encode_frame(x, i) if k == "device" else x) for i, (t, k, x) in enumerate(inputs, start=1)]
     t0 = time.process_time()
     rec = Recorder(RecorderConfig())
-    rec.mcap = McapRecorder(tmp)
-    rec._register_topics()  # the benchmark drives the worker's own steps (no device, no links)
+    rec.log_file.mcap = McapRecorder(tmp)
+    register_channels(rec.log_file.mcap)  # the benchmark drives the worker's own steps (no device, no links)
     parser = mavlink2.MAVLink(None)
     parser.robust_parsing = True
     dec = StreamDecoder()
@@ -214,14 +215,14 @@ def ours_offline_cpu_percent(inputs: list[tuple[int, str, Any]], flight_s: float
     for t, kind, b in framed:
         if kind == "mavlink":
             for msg in parser.parse_buffer(b) or []:
-                rec._handle((_MAVLINK, MavlinkMessage(msg, t), t))
+                rec.inbox.dispatch((_MAVLINK, MavlinkMessage(msg, t), t))
         else:
             for received in dec.feed(b):
-                rec._handle((_DEVICE, received, t))
+                rec.inbox.dispatch((_DEVICE, received, t))
         if t >= next_poll:
-            rec._work_once(t)
+            rec.worker.work_once(t)
             next_poll = t + 10_000_000
-    rec.mcap.close()
+    rec.log_file.mcap.close()
     cpu = time.process_time() - t0
     tmp.unlink(missing_ok=True)
     return 100.0 * cpu / flight_s
@@ -235,14 +236,15 @@ def flood_offline_us(tmp: Path, n: int = 30_000) -> float:
     from icgt.recorder import Recorder
     from icgt.recorder.config import RecorderConfig
     from icgt.recorder.inbox import MAVLINK as _MAVLINK
+    from icgt.recorder.log_file import register_channels
     from icgt.recording import McapRecorder
 
     frames = flood_frames()
     rec = Recorder(RecorderConfig())
-    rec.mcap = McapRecorder(tmp)
-    rec._register_topics()
+    rec.log_file.mcap = McapRecorder(tmp)
+    register_channels(rec.log_file.mcap)
     link = MavlinkLink(LinkConfig(url="udpin:127.0.0.1:0", decode_systems=rec.mavlink_input.expanded_systems))
-    put = rec._inbox.append
+    put = rec.inbox.items.append
     try:  # as the recorder subscribes: other systems' frames in batches (a revision without them: one each)
         link.subscribe(lambda r: put((_MAVLINK, r, r.rx_ns)), undecoded=lambda b: put((_MAVLINK, b, b.rx_ns)))
     except TypeError:
@@ -252,9 +254,9 @@ def flood_offline_us(tmp: Path, n: int = 30_000) -> float:
     for i in range(n):
         link._feed(frames[i % len(frames)], t + i * 100_000)
         if i % 1000 == 999:  # the worker steps every 100 ms: 1000 datagrams at 10 k/s
-            rec._drain(limit=None)
-    rec._drain(limit=None)
-    rec.mcap.close()
+            rec.worker.drain(limit=None)
+    rec.worker.drain(limit=None)
+    rec.log_file.mcap.close()
     cpu = time.process_time() - t0
     tmp.unlink(missing_ok=True)
     return cpu / n * 1e6

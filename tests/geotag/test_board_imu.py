@@ -15,9 +15,9 @@ from typing import Any
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
-from test_gimbal import DEV_TO_HOST_NS, HOST_TO_BOOT_US, MID_DEVICE_US, FixedClocks, S  # the same fixed clocks
+from test_gimbal import DEV_TO_HOST_NS, HOST_TO_BOOT_US, MID_DEVICE_US, FixedClocks, expose_at_mid, optical_axis
 
-from icgt.geodesy import q_conjugate, q_from_euler_zyx, q_multiply, q_rotate
+from icgt.geodesy import q_conjugate, q_from_euler_zyx, q_multiply
 from icgt.geotag.board_imu import right_axis_heading_rad
 from icgt.geotag.config import GeotagConfig
 from icgt.geotag.geotagger import Geotagger
@@ -25,7 +25,7 @@ from icgt.geotag.record import FrameFlag, FrameRecord
 from icgt.mavlink.link import MavlinkMessage
 from icgt.mavlink.telemetry import TelemetryStore
 from icgt.pose import Q_OPTICAL_TO_FRD, camera_to_body_quaternion
-from icgt.protocol.messages import Exposure, Imu
+from icgt.protocol.messages import Imu
 
 AP = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
 DEVICE_TO_BOOT_US = DEV_TO_HOST_NS // 1000 - HOST_TO_BOOT_US  # 3 s
@@ -89,23 +89,7 @@ def frame_with(bno: Callable[[int], np.ndarray | None], *, yawspeed_rps: float =
                     calib_stat=0xFF,
                 )
             )
-    e = Exposure(
-        image_index=1,
-        camera_id=0,
-        trigger_t_us=MID_DEVICE_US - 45_000,
-        feedback_start_t_us=MID_DEVICE_US - 5_000,
-        feedback_end_t_us=MID_DEVICE_US + 5_000,
-        duration_us=10_000,
-    )
-    gt.add_exposure(e, (MID_DEVICE_US + 5_000) * 1000 + DEV_TO_HOST_NS + 3_000_000)
-    gt.poll((MID_DEVICE_US + 5_000) * 1000 + DEV_TO_HOST_NS + 10 * S, flush=True)
-    assert len(out) == 1
-    return out[0]
-
-
-def optical_axis(f: FrameRecord) -> np.ndarray:
-    assert f.cam_qw is not None and f.cam_qx is not None and f.cam_qy is not None and f.cam_qz is not None
-    return np.asarray(q_rotate(np.array([f.cam_qw, f.cam_qx, f.cam_qy, f.cam_qz]), np.array([0.0, 0.0, 1.0])))
+    return expose_at_mid(gt, out)
 
 
 def steady(pitch_deg: float) -> Callable[[int], np.ndarray]:

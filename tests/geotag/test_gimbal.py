@@ -99,6 +99,11 @@ def frame_with(gimbal: list[tuple[int, mavlink2.MAVLink_message]], body_yaw_deg:
         sample = gimbal_sample(msg, boot_us, 0)
         assert sample is not None
         store.gimbal.push(sample)
+    return expose_at_mid(gt, out)
+
+
+def expose_at_mid(gt: Geotagger, out: list[FrameRecord]) -> FrameRecord:
+    """One 10 ms exposure centred on MID_DEVICE_US, received 3 ms after its end, flushed: its frame record."""
     e = Exposure(
         image_index=1,
         camera_id=0,

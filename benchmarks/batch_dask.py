@@ -55,8 +55,12 @@ def main() -> int:
             if bad:
                 print(f"{n} worker(s): {len(bad)} flights failed: {bad[0].error}")
                 return 1
+            tasks = sum(o.seconds for o in outcomes)
+            # the wall split: the tasks' own time (what a busier core stretches) against the rest (the cluster's
+            # start, the scheduler, a worker idle at the end)
             print(f"{n} worker(s): {args.flights} flights x {args.frames} frames in {walls[n]:.1f} s "
-                  f"({args.flights / walls[n]:.2f} flights/s)")  # fmt: skip
+                  f"({args.flights / walls[n]:.2f} flights/s); tasks {tasks:.1f} s in all, "
+                  f"{tasks / len(outcomes):.2f} s each; wall - tasks / {n}: {walls[n] - tasks / n:.1f} s")  # fmt: skip
         same = [p.name for p in Catalog(work / "cat1").partitions()] == [
             p.name for p in Catalog(work / "cat2").partitions()
         ]

@@ -138,7 +138,13 @@ def run_batch(
     try:
         if scheduler is None:
             n = workers or os.cpu_count() or 1
-            cluster = dist.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
+            # Without the worker's statistical profiler (it samples the task thread's stack every 10 ms for the
+            # dashboard, which a LocalCluster here does not serve): measured with it, two workers on two idle
+            # cores ran 1.48-1.55x one worker; without it 1.98 (benchmarks/batch_dask.py, docs/catalog.md).
+            # The nanny hands the worker processes this configuration.
+            dask_config: Any = importlib.import_module("dask.config")
+            with dask_config.set({"distributed.worker.profile.enabled": False}):
+                cluster = dist.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
             client = dist.Client(cluster)
         else:
             client = dist.Client(scheduler, timeout="20s")

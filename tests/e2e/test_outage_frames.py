@@ -4,8 +4,8 @@ The real firmware core behind the simulator's pty, `icgt record` as a subprocess
 a hover at 5 fps with IMU and range at 100 Hz and the fused position at 50 Hz, the cable pulled at 8 s for
 30 s, the capture running until 10 s after it is back. The flight's live frames (before and after the
 unplug) are the flight without the unplug: every exposure the unplug covered comes back through RESEND and
-is posed as they are (geotag error against the simulator's truth within theirs plus `POSITION_BOUND_M`),
-because the host kept the autopilot telemetry that arrived on time. Every one is ranged as the live ones are
+is posed as they are (geotag error against the simulator's truth: RMS as theirs, none beyond the fused
+position's noise), because the host kept the autopilot telemetry that arrived on time. Every one is ranged as the live ones are
 (within `RANGE_BOUND_M`): the frames of the last seconds of the unplug from the LiDAR samples the device still
 held (its range ring: 1024 samples, 10.2 s at 100 Hz), the older ones, whose samples are gone, from the range
 the device recorded with the exposure itself (its sensor snapshot, protocol 2: `range_from_snapshot`, range
@@ -25,7 +25,7 @@ from icgt.sim.scenario import load_scenario
 
 SCENARIO = Path(__file__).with_name("resend_flight.toml")
 UNPLUG_S = 30.0
-POSITION_BOUND_M = 0.05  # a recovered frame's geotag error: at most the live frames' worst plus this
+POSITION_RMS_MARGIN_M = 0.01  # the recovered frames' geotag error RMS: at most 1.3 x the live frames' plus this
 RANGE_BOUND_M = 0.02  # a recovered frame's range error: at most the live frames' worst plus this
 SAMPLES_HELD_S = 10.2  # the device's range ring at 100 Hz: older frames can only be ranged from the snapshot
 
@@ -50,11 +50,21 @@ def test_every_exposure_of_the_unplug_came_back_as_a_resent_frame(flight: Outage
 def test_every_recovered_frame_is_posed_as_the_live_ones_are(flight: OutageFlight) -> None:
     live = [f.geotag_error_m for f in flight.window(False)]
     assert len(live) >= 50 and all(e is not None for e in live)
-    worst_live = max(e for e in live if e is not None)
-    for f in flight.window(True):
+    recovered = flight.window(True)
+    for f in recovered:
         assert f.geotag_error_m is not None, f"frame {f.image_index} has no position: {f.flags}"
-        assert f.geotag_error_m <= worst_live + POSITION_BOUND_M, (f.image_index, f.geotag_error_m, worst_live)
         assert "telemetry_expired" not in f.flags
+    # Posed as the live ones are: the same error distribution, and no frame beyond the fused position's noise.
+    # (Not "within the live frames' worst plus 5 cm": the worst of ~150 recovered frames against the worst of
+    # ~55 live ones is a draw of the noise; CI met 0.135 m against 0.083 m once.) A pose held or taken at the
+    # wrong time would be off by the sway's 0.3 m, a distribution shift the RMS sees.
+    gps = load_scenario(SCENARIO).gps
+    sigma_m = float(np.sqrt(2.0 * gps.fused_noise_horizontal_m**2 + gps.fused_noise_vertical_m**2))  # 3-D RMS
+    live_err = np.array(live, dtype=float)
+    rec_err = np.array([f.geotag_error_m for f in recovered], dtype=float)
+    rms_live, rms_rec = float(np.sqrt(np.mean(live_err**2))), float(np.sqrt(np.mean(rec_err**2)))
+    assert rms_rec <= 1.3 * rms_live + POSITION_RMS_MARGIN_M, (rms_rec, rms_live)
+    assert float(rec_err.max()) <= 5.0 * sigma_m, (float(rec_err.max()), sigma_m)
 
 
 def test_every_recovered_frame_is_ranged_as_the_live_ones_from_the_samples_or_its_own_snapshot(

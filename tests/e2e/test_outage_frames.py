@@ -1,15 +1,15 @@
 """Issue 27 end to end: a 30 s USB unplug costs the recovered frames nothing the host can keep.
 
-The real firmware core behind the simulator's pty, `icgt record` as a subprocess (`icgt.sim.outage_flight`):
-a hover at 5 fps with IMU and range at 100 Hz and the fused position at 50 Hz, the cable pulled at 8 s for
-30 s, the capture running until 10 s after it is back. The flight's live frames (before and after the
-unplug) are the flight without the unplug: every exposure the unplug covered comes back through RESEND and
-is posed as they are (geotag error against the simulator's truth: RMS as theirs, none beyond the fused
-position's noise), because the host kept the autopilot telemetry that arrived on time. Every one is ranged as the live ones are
-(within `RANGE_BOUND_M`): the frames of the last seconds of the unplug from the LiDAR samples the device still
-held (its range ring: 1024 samples, 10.2 s at 100 Hz), the older ones, whose samples are gone, from the range
-the device recorded with the exposure itself (its sensor snapshot, protocol 2: `range_from_snapshot`, range
-source `snapshot`), interpolated between the same acquisitions the host would have used.
+The real firmware core behind the simulator's pty, `icgt record` as a subprocess (`icgt.sim.outage_flight`): a
+hover at 5 fps with IMU and range at 100 Hz and the fused position at 50 Hz, the cable pulled at 8 s for 30 s, the
+capture running until 10 s after it is back. The flight's live frames (before and after the unplug) are the flight
+without the unplug: every exposure the unplug covered comes back through RESEND and is posed as they are (geotag
+error against the simulator's truth: RMS as theirs, none beyond the fused position's noise), because the host kept
+the autopilot telemetry that arrived on time. Every one is ranged as the live ones are (within `RANGE_BOUND_M`):
+the frames of the last seconds of the unplug from the LiDAR samples the device still held (its range ring: 1024
+samples, 10.2 s at 100 Hz), the older ones, whose samples are gone, from the range the device recorded with the
+exposure itself (its sensor snapshot, protocol 2: `range_from_snapshot`, range source `snapshot`), interpolated
+between the same acquisitions the host would have used.
 """
 
 from __future__ import annotations

@@ -69,13 +69,13 @@ BASE: dict[str, Any] = {
             "mode": "interval",
             "start_s": 3.0,
             "stop_s": 15.5,
-            "interval_ms": 200,
+            "interval_s": 0.2,
         },
     },
     "gps": {"fix_type": 3},
     "clocks": {
-        "device": {"offset_us": 3_000_000, "drift_ppm": 30.0},
-        "autopilot": {"offset_us": 50_000_000},
+        "device": {"offset_s": 3.0, "drift_ppm": 30.0},
+        "autopilot": {"offset_s": 50.0},
     },
 }
 PEER = "latest-pose copy (PX4/ArduPilot)"

@@ -55,13 +55,13 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
 import json
 import math
 import os
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 
 import icgt
@@ -76,12 +76,12 @@ from icgt.sim.scenario import Scenario, load_scenario
 def scenario_at(fps: float, capture_s: float) -> Scenario:
     sc = load_scenario("deck_pass")
     start_s = 16.0  # the recorder and its camera component are up by then, even on a loaded machine
-    cap = dataclasses.replace(
-        sc.camera.capture, mode="interval", interval_ms=round(1000.0 / fps), start_s=start_s, stop_s=start_s + capture_s
+    cap = msgspec.structs.replace(
+        sc.camera.capture, mode="interval", interval_s=1.0 / fps, start_s=start_s, stop_s=start_s + capture_s
     )
-    cam = dataclasses.replace(sc.camera, capture=cap, max_fps=20.0, shutter_latency_us=48_000, shutter_jitter_us=2_000)
-    faults = dataclasses.replace(sc.faults, manual_shots_s=(), autopilot_link_drops_s=(), device_unplugs_s=())
-    return dataclasses.replace(
+    cam = msgspec.structs.replace(sc.camera, capture=cap, max_fps=20.0, shutter_latency_s=0.048, shutter_jitter_s=0.002)
+    faults = msgspec.structs.replace(sc.faults, manual_shots_s=(), autopilot_link_drops_s=(), device_unplugs_s=())
+    return msgspec.structs.replace(
         sc, name=f"deck_{fps:g}fps", camera=cam, faults=faults, duration_s=start_s + capture_s + 3.0
     )
 

@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
 import json
 import math
 import os
@@ -46,6 +45,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 from pymavlink import DFReader, mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mav
@@ -517,9 +517,9 @@ def main() -> int:
         old.unlink()
 
     base = load_scenario(SCENARIO)
-    cam = dataclasses.replace(base.camera, lever_arm_m=(0.0, 0.0, 0.0))
-    ap = dataclasses.replace(base.autopilot, camera=dataclasses.replace(base.autopilot.camera, backend="none"))
-    sc = dataclasses.replace(base, name="sitl_flight", duration_s=900.0, camera=cam, autopilot=ap)
+    cam = msgspec.structs.replace(base.camera, lever_arm_m=(0.0, 0.0, 0.0))
+    ap = msgspec.structs.replace(base.autopilot, camera=msgspec.structs.replace(base.autopilot.camera, backend="none"))
+    sc = msgspec.structs.replace(base, name="sitl_flight", duration_s=900.0, camera=cam, autopilot=ap)
     home = (sc.origin.lat_deg, sc.origin.lon_deg, sc.origin.alt_m)
 
     set_params(binary, defaults, sitl_dir, home, {**PARAMS, "CAM1_TYPE": args.cam_type})

@@ -35,12 +35,12 @@ arenas +0.1 MiB/min; the recorder now gives its threads one arena (icgt.recorder
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import tempfile
 import threading
 import time
 from pathlib import Path
 
+import msgspec
 import numpy as np
 from recorder_cpu import find_recorder
 
@@ -61,12 +61,12 @@ def soak_scenario(minutes: float, fps: float) -> Scenario:
     sc = load_scenario("deck_pass")
     start_s = 16.0  # the recorder and its camera component are up by then, even on a loaded machine
     capture_s = minutes * 60.0
-    cap = dataclasses.replace(
-        sc.camera.capture, mode="interval", interval_ms=round(1000.0 / fps), start_s=start_s, stop_s=start_s + capture_s
+    cap = msgspec.structs.replace(
+        sc.camera.capture, mode="interval", interval_s=1.0 / fps, start_s=start_s, stop_s=start_s + capture_s
     )
-    faults = dataclasses.replace(sc.faults, manual_shots_s=(), autopilot_link_drops_s=(), device_unplugs_s=())
-    return dataclasses.replace(
-        sc, name=f"soak_{minutes:g}min", camera=dataclasses.replace(sc.camera, capture=cap), faults=faults,
+    faults = msgspec.structs.replace(sc.faults, manual_shots_s=(), autopilot_link_drops_s=(), device_unplugs_s=())
+    return msgspec.structs.replace(
+        sc, name=f"soak_{minutes:g}min", camera=msgspec.structs.replace(sc.camera, capture=cap), faults=faults,
         duration_s=start_s + capture_s + 3.0,
     )  # fmt: skip
 

@@ -201,7 +201,7 @@ def fly(
         held_s = session.release()
         print(f"simulator: scenario clock held {held_s:.1f} s until the recorder's camera was seen", flush=True)
         gcs.pump(max(0.2, cap.start_s - session.tau_s))
-        interval_s = cap.interval_ms / 1000.0 if cap.mode == "interval" else 1.0 / cap.burst_fps
+        interval_s = cap.interval_s if cap.mode == "interval" else 1.0 / cap.burst_fps
         print(f"ground station: start capture at tau {session.tau_s:.1f} s", flush=True)
         gcs.command_acked(mavutil.mavlink.MAV_CMD_IMAGE_START_CAPTURE, 0, interval_s, cap.count, 0)
         stop_at = cap.stop_s if cap.stop_s is not None else sc.duration_s - 2.0

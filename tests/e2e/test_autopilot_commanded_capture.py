@@ -14,12 +14,12 @@ the triggers keep ArduPilot's rules (interval strictly exceeded, distance reache
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 import pytest
 from mcap.reader import make_reader
@@ -39,9 +39,9 @@ MAX_COMMAND_TO_EXPOSURE_S = 1.5  # shutter latency 48 ms plus the recorder's que
 def scenario(backend: str) -> Scenario:
     if backend == "px4":
         return PX4
-    cam = dataclasses.replace(BASE.autopilot.camera, backend=backend)
-    ap = dataclasses.replace(BASE.autopilot, camera=cam)
-    return dataclasses.replace(BASE, name=f"{BASE.name}_{backend}", autopilot=ap)
+    cam = msgspec.structs.replace(BASE.autopilot.camera, backend=backend)
+    ap = msgspec.structs.replace(BASE.autopilot, camera=cam)
+    return msgspec.structs.replace(BASE, name=f"{BASE.name}_{backend}", autopilot=ap)
 
 
 class Flown:

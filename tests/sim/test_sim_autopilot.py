@@ -42,7 +42,7 @@ SCENARIO: dict[str, Any] = {
         "fused_noise_vertical_m": 0.0,
     },
     "autopilot": {"mavlink1_messages": ["HEARTBEAT"], "rates_hz": {"system_time": 5.0}},
-    "clocks": {"autopilot": {"offset_us": AP_OFFSET_US, "drift_ppm": AP_DRIFT_PPM}},
+    "clocks": {"autopilot": {"offset_s": AP_OFFSET_US / 1e6, "drift_ppm": AP_DRIFT_PPM}},
 }
 
 

@@ -7,6 +7,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 import exifread
+import msgspec
 import pytest
 from PIL import Image
 
@@ -50,7 +51,7 @@ def test_card_names_and_exif_times(tmp_path: Path, resolution: str) -> None:
     sc = load_scenario("hover")
     clocks = dataclasses.replace(ClockMaps.from_scenario(sc, 0, UTC0_US), exif_resolution=resolution)
     truth = exposures(sc, clocks)
-    camera = dataclasses.replace(sc.camera, first_file_number=98)
+    camera = msgspec.structs.replace(sc.camera, first_file_number=98)
     paths = write_card(tmp_path / "DCIM", truth, clocks, camera)
     assert [p.name for p in paths] == ["DSC00098.JPG", "DSC00099.JPG", "DSC00100.JPG", "DSC00101.JPG"]
     assert sorted(p.name for p in (tmp_path / "DCIM").iterdir()) == [p.name for p in paths]

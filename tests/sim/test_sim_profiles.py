@@ -36,8 +36,8 @@ def test_the_default_profile_is_the_ideal_autopilot_of_before() -> None:
     ap = scenario().autopilot
     assert ap.profile == "ideal"
     assert ap.rates_hz["global_position_int"] == 10.0 and ap.rates_hz["gps_raw_int"] == 5.0
-    assert ap.latency_ms == 2.0 and ap.answer_timesync and ap.honour_message_interval
-    assert ap.stamp_jitter_ms == 0.0 and ap.local_position_lag_ms == 0.0 and ap.system_id == 1
+    assert ap.latency_s == 0.002 and ap.answer_timesync and ap.honour_message_interval
+    assert ap.stamp_jitter_s == 0.0 and ap.local_position_lag_s == 0.0 and ap.system_id == 1
 
 
 @pytest.mark.parametrize("profile", ["ardupilot", "px4"])
@@ -45,10 +45,10 @@ def test_a_profile_sets_the_defaults_and_the_scenario_overrides_them(profile: st
     ap = scenario(profile=profile).autopilot
     base = PROFILES[profile]
     assert dict(ap.rates_hz) == dict(base["rates_hz"])
-    assert ap.firmware == base["firmware"] and ap.latency_ms == base["latency_ms"]
-    assert ap.local_position_lag_ms == base["local_position_lag_ms"]
-    changed = scenario(profile=profile, latency_ms=7.0, rates_hz={"global_position_int": 2.0}).autopilot
-    assert changed.latency_ms == 7.0 and changed.rates_hz["global_position_int"] == 2.0
+    assert ap.firmware == base["firmware"] and ap.latency_s == base["latency_s"]
+    assert ap.local_position_lag_s == base["local_position_lag_s"]
+    changed = scenario(profile=profile, latency_s=0.007, rates_hz={"global_position_int": 2.0}).autopilot
+    assert changed.latency_s == 0.007 and changed.rates_hz["global_position_int"] == 2.0
     assert changed.rates_hz["attitude"] == base["rates_hz"]["attitude"]
 
 
@@ -58,7 +58,7 @@ def test_profile_facts() -> None:
     assert px4.own_timesync_hz == 10.0 and px4.rates_hz["gps_global_origin"] == 1.0
     ardu = scenario(profile="ardupilot").autopilot
     assert ardu.rates_hz["global_position_int"] == 4.0 and ardu.rates_hz["attitude_quaternion"] == 0.0
-    assert ardu.local_position_lag_ms == 20.0 and ardu.gps_fix_rate_hz == 5.0 and ardu.origin_on_change
+    assert ardu.local_position_lag_s == 0.02 and ardu.gps_fix_rate_hz == 5.0 and ardu.origin_on_change
     assert ardu.param_burst_stream_divisor == 4
 
 
@@ -68,7 +68,7 @@ def test_profile_facts() -> None:
         ("profile", "inav", "profile: must be one of"),
         ("system_id", 0, "system_id: must be >= 1"),
         ("gcs_heartbeat_systems", [245, 300], "gcs_heartbeat_systems[1]: must be <= 255"),
-        ("origin_reset_shift_m", [1.0, 2.0], "origin_reset_shift_m: expected [x, y, z]"),
+        ("origin_reset_shift_m", [1.0, 2.0], "origin_reset_shift_m: expected an array of 3 values"),
         ("param_burst_count", 0, "param_burst_count: must be >= 1"),
         ("local_position_lagms", 3.0, "local_position_lagms: unknown key"),
     ],

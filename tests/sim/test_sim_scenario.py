@@ -46,14 +46,10 @@ def test_shipped_scenarios_load_with_their_kinds() -> None:
     assert isinstance(pier.trajectory, PierScan)
     assert pier.trajectory.speed_m_s == 0.8 and pier.trajectory.side_overlap == 0.6
     assert pier.camera.capture.mode == "focus_burst"
-    assert (pier.camera.capture.focus_ms, pier.camera.capture.burst_ms, pier.camera.capture.burst_fps) == (
-        500,
-        2000,
-        5.0,
-    )
+    assert (pier.camera.capture.focus_s, pier.camera.capture.burst_s, pier.camera.capture.burst_fps) == (0.5, 2.0, 5.0)
     assert 60.0 <= pier.duration_s <= 90.0
     assert isinstance(deck.trajectory, DeckPass) and deck.trajectory.speed_m_s == 10.0
-    assert deck.camera.capture.mode == "interval" and deck.camera.capture.interval_ms == 200
+    assert deck.camera.capture.mode == "interval" and deck.camera.capture.interval_s == 0.2
     assert deck.autopilot.rates_hz["global_position_int"] == 50.0
     assert isinstance(hover.trajectory, Hover)
     assert hover.gps.outages_s and hover.gps.denied_s and hover.gps.fix_acquired_after_s > 0
@@ -86,13 +82,21 @@ def test_focus_burst_plan_is_the_papers_cycle() -> None:
 @pytest.mark.parametrize(
     ("path", "value", "key", "words"),
     [
-        ("trajectory.kind", "orbit", "trajectory.kind", "one of"),
+        ("trajectory.kind", "orbit", "trajectory.kind", "must be one of 'pier_scan', 'deck_pass', 'hover', 'survey'"),
+        ("gps.hdop", float("nan"), "gps.hdop", "finite"),
+        ("gps.outages_s", [[1.0, float("inf")]], "gps.outages_s[0][1]", "finite"),
+        ("camera.lever_arm_m", [0.1, 0.2], "camera.lever_arm_m", "an array of 3 values"),
+        ("camera.capture.interval_s", 0.0, "camera.capture.interval_s", "must be > 0.0, got 0.0"),
+        ("autopilot.rates_hz", {"global_position": 5.0}, "autopilot.rates_hz.global_position", "unknown key"),
+        ("autopilot.gcs_heartbeat_systems", [245, 256], "autopilot.gcs_heartbeat_systems[1]", "<= 255, got 256"),
+        ("surface", {"cracks": [{"points_m": [[0.0, 1.0]], "width_mm": 0.5}]}, "surface.cracks[0].points_m", "least 2"),
+        ("surface", {"spalls": [{"points_m": [[0, 0], [1, 1], [2, 2]]}]}, "surface.spalls[0].points_m", "polygon"),
         ("trajectory.speed_m_s", 1.0, "trajectory.speed_m_s", "unknown key"),  # not a hover parameter
         ("gps.noise_m", 1.0, "gps.noise_m", "unknown key"),
         ("gps.outages_s", [[5.0, 2.0]], "gps.outages_s[0]", "after start"),
         ("gps.fix_type", 9, "gps.fix_type", "<= 6"),
         ("clocks.camera.exif_resolution", "1ms", "clocks.camera.exif_resolution", "one of"),
-        ("clocks.device.offset_us", 1.5, "clocks.device.offset_us", "integer"),
+        ("clocks.device.offset_s", "soon", "clocks.device.offset_s", "number"),
         ("duration_s", "long", "duration_s", "number"),
         ("structure.normal", [0.0, 0.0, 0.0], "structure.normal", "zero vector"),
         ("faults.device_unplugs_s", [[3.0, 0.0]], "faults.device_unplugs_s[0]", "duration"),
@@ -130,3 +134,36 @@ def test_file_errors_are_sim_errors(tmp_path: Path) -> None:
     with pytest.raises(SimError, match="cannot read"):
         load_scenario(tmp_path / "absent.toml")
     assert issubclass(ScenarioError, IcgtError)
+
+
+@pytest.mark.parametrize(
+    ("path", "value", "new"),
+    [
+        ("camera.capture.focus_ms", 500, "focus_s = 0.5"),
+        ("camera.exposure_us", 1000, "exposure_s = 0.001"),
+        ("clocks.device.offset_us", 7_351_224, "offset_s = 7.351224"),
+        ("autopilot.latency_ms", 2.0, "latency_s = 0.002"),
+        ("link.usb_jitter_us", 60, "usb_jitter_s = 6e-05"),
+    ],
+)
+def test_a_key_of_an_older_version_is_refused_with_its_new_name_and_value(path: str, value: Any, new: str) -> None:
+    """Times are seconds in every scenario key now; an old file says what to write instead."""
+    with pytest.raises(ScenarioError) as info:
+        parse_scenario(with_change(path, value), "old.toml")
+    message = str(info.value)
+    assert message.startswith(f"old.toml: {path}: "), message
+    assert f"write {new}" in message, message
+
+
+def test_a_profile_fills_only_the_keys_the_file_leaves_out() -> None:
+    px4 = parse_scenario(with_change("autopilot", {"profile": "px4", "latency_s": 0.009}))
+    assert px4.autopilot.latency_s == 0.009  # the file's value
+    assert px4.autopilot.latency_jitter_s == 0.004 and px4.autopilot.firmware == "px4"  # the profile's
+
+
+def test_every_scenario_in_the_repository_loads() -> None:
+    """The shipped scenarios and every test flight's file: a renamed key left in one would fail its flight late."""
+    root = Path(__file__).resolve().parents[2]
+    files = sorted(SCENARIO_DIR.glob("*.toml")) + sorted((root / "tests").rglob("*.toml"))
+    loaded = [load_scenario(p) for p in files]
+    assert len(loaded) >= 20 and all(sc.duration_s > 0 for sc in loaded)

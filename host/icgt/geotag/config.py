@@ -128,5 +128,5 @@ def renamed_message(key: str, value: Any, renamed: Mapping[str, tuple[str, float
     if key not in renamed:
         return None
     new, factor = renamed[key]
-    shown = f" = {value * factor:g}" if isinstance(value, int | float) and not isinstance(value, bool) else ""
+    shown = f" = {value * factor:.12g}" if isinstance(value, int | float) and not isinstance(value, bool) else ""
     return f"{key} was renamed {new} (seconds): write {new}{shown}"

@@ -98,6 +98,7 @@ from icgt.geotag import GeotagConfig
 from icgt.geotag.config import RENAMED as CAMERA_RENAMED
 from icgt.geotag.config import renamed_message
 from icgt.protocol.messages import LidarModel
+from icgt.settings_errors import error_at, lookup
 from icgt.sync.config import RENAMED as SYNC_RENAMED
 from icgt.sync.config import SyncTuning
 
@@ -277,28 +278,11 @@ def _dec_hook(kind: type, value: Any) -> Any:
     raise NotImplementedError(f"{kind}")
 
 
-_AT = re.compile(r"^(?P<why>.*?)(?: - at `\$(?P<path>[^`]*)`)?$")
-
-
-def _lookup(data: Any, path: str) -> tuple[bool, Any]:
-    """The raw value at a msgspec error path such as `.capture.interval_s` or `.camera.lever_arm_body_m[1]`."""
-    value = data
-    for part in re.findall(r"\.([A-Za-z_][A-Za-z0-9_]*)|\[(\d+)\]", path):
-        key, index = part
-        try:
-            value = value[key] if key else value[int(index)]
-        except (KeyError, IndexError, TypeError):
-            return False, None
-    return True, value
-
-
 def _explain(exc: msgspec.ValidationError, data: Any, source: str) -> ConfigError:
-    m = _AT.match(str(exc))
-    why = m.group("why") if m else str(exc)
-    path = (m.group("path") if m else None) or ""
+    why, path = error_at(exc)
     parts = [p for p in re.split(r"\.", path) if p]
     where = f"[{parts[0]}] {'.'.join(parts[1:])}" if len(parts) > 1 else (f"[{parts[0]}]" if parts else "")
-    found, value = _lookup(data, path)
+    found, value = lookup(data, path)
     shown = f" = {value!r}" if found and not isinstance(value, dict) else ""
     why = why.replace("Object contains unknown field", "unknown key").replace("Expected", "expected")
     return ConfigError(f"{source}: {where}{shown}: {why}" if where else f"{source}: {why}")

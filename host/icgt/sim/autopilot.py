@@ -17,8 +17,8 @@ link and on an optional GCS link:
   jumps at each EKF origin reset `origin_resets_s`), GPS_GLOBAL_ORIGIN (as a stream, or once when
   the origin is set and at each reset with `origin_on_change`).
 
-Each estimate is stamped on a grid of its stream interval on the boot clock (plus `stamp_jitter_ms`,
-and `local_position_lag_ms` for LOCAL_POSITION_NED) and leaves the autopilot `latency_ms` (+- jitter)
+Each estimate is stamped on a grid of its stream interval on the boot clock (plus `stamp_jitter_s`,
+and `local_position_lag_s` for LOCAL_POSITION_NED) and leaves the autopilot `latency_s` (+- jitter)
 after its stamp, paced against time.monotonic_ns and the contract's t0. It answers TIMESYNC (tc1 =
 boot time [ns] at microsecond granularity, as ArduPilot and PX4; ts1 echoed) unless
 `answer_timesync` is false, and may send its own requests (`own_timesync_hz`, as PX4); COMMAND_LONG
@@ -234,8 +234,8 @@ class SimAutopilot:
         self.baud = baud
         self.trajectory = trajectory or Trajectory(scenario)
         ap = scenario.autopilot
-        self.latency_ns = round((ap.latency_ms if latency_ms is None else latency_ms) * 1e6)
-        self.jitter_ns = round((ap.latency_jitter_ms if latency_jitter_ms is None else latency_jitter_ms) * 1e6)
+        self.latency_ns = round((ap.latency_s * 1e3 if latency_ms is None else latency_ms) * 1e6)
+        self.jitter_ns = round((ap.latency_jitter_s * 1e3 if latency_jitter_ms is None else latency_jitter_ms) * 1e6)
         names = ap.mavlink1_messages if mavlink1_messages is None else tuple(mavlink1_messages)
         self.mavlink1_messages = frozenset(n.upper() for n in names)
         self.frame = LocalFrame(scenario.origin.lat_deg, scenario.origin.lon_deg, scenario.origin.ellipsoid_height_m)
@@ -380,7 +380,7 @@ class SimAutopilot:
         """Where in its grid interval a stamp falls: the main-loop jitter, plus LOCAL_POSITION_NED's lag."""
         ap = self.scenario.autopilot
         assert s.interval_us is not None
-        span_ms = ap.stamp_jitter_ms + (ap.local_position_lag_ms if s.name == "local_position_ned" else 0.0)
+        span_ms = 1e3 * (ap.stamp_jitter_s + (ap.local_position_lag_s if s.name == "local_position_ned" else 0.0))
         if span_ms <= 0.0:
             return 0
         limit_us = max(0, s.interval_us - 1000)  # stamps stay in order and one apart

@@ -38,6 +38,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
+import msgspec
 import numpy as np
 import shapely
 
@@ -99,7 +100,7 @@ def lookalike_surface(surface: Surface) -> Surface:
     """The face's look-alikes as a detector mistakes them: joints as cracks, stains as spalled areas."""
     cracks = tuple(CrackSpec(LOOKALIKE + j.id, j.points_m, j.width_mm) for j in surface.joints)
     spalls = tuple(SpallSpec(LOOKALIKE + s.id, s.points_m) for s in surface.stains)
-    return replace(surface, cracks=cracks, spalls=spalls, stains=(), joints=())
+    return msgspec.structs.replace(surface, cracks=cracks, spalls=spalls, stains=(), joints=())
 
 
 def _arc(points: FloatArray) -> FloatArray:
@@ -247,7 +248,7 @@ def detect_with_errors(
     surface = scenario.surface
     assert surface is not None, "a scenario without [surface] has nothing to detect"
     rng = np.random.default_rng(seed)
-    looks_sc = replace(scenario, surface=lookalike_surface(surface))
+    looks_sc = msgspec.structs.replace(scenario, surface=lookalike_surface(surface))
     per_image = []
     for e in sorted(exposures, key=lambda x: x.frame_number):
         name = file_name(scenario.camera.first_file_number + e.frame_number - 1)

@@ -10,12 +10,12 @@ benchmarks/resend_faults.py.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 
 from icgt.geodesy import LocalFrame
@@ -74,8 +74,9 @@ class OutageFlight:
 def outage_scenario(sc: Scenario, unplug_s: float) -> Scenario:
     """``sc`` lengthened to hold a ``unplug_s`` unplug at `UNPLUG_AT_S` and `AFTER_S` of capture after it."""
     stop = UNPLUG_AT_S + unplug_s + AFTER_S
-    capture = dataclasses.replace(sc.camera.capture, start_s=CAPTURE_START_S, stop_s=stop)
-    return dataclasses.replace(sc, duration_s=stop + 5.0, camera=dataclasses.replace(sc.camera, capture=capture))
+    capture = msgspec.structs.replace(sc.camera.capture, start_s=CAPTURE_START_S, stop_s=stop)
+    camera = msgspec.structs.replace(sc.camera, capture=capture)
+    return msgspec.structs.replace(sc, duration_s=stop + 5.0, camera=camera)
 
 
 def fly_outage(sc: Scenario, unplug_s: float, out: Path, *, stop_after_s: float | None = None) -> OutageFlight:

@@ -22,9 +22,9 @@ sent 2 ms later, TIMESYNC answered, SET_MESSAGE_INTERVAL honoured and ACKed, no 
   (``honour_message_interval = false``).
 - Stamps: GLOBAL_POSITION_INT, LOCAL_POSITION_NED and ATTITUDE carry ``AP_HAL::millis()`` of the
   moment they are written (the AHRS state then), so stamps fall wherever the 400 Hz main loop
-  (2.5 ms) sends them: ``stamp_jitter_ms = 2.5``. LOCAL_POSITION_NED is written after
+  (2.5 ms) sends them: ``stamp_jitter_s = 0.0025``. LOCAL_POSITION_NED is written after
   GLOBAL_POSITION_INT in the same stream and, when the port's buffer is short, a loop or more
-  later: up to 20 ms later in real logs (issue 9): ``local_position_lag_ms = 20``.
+  later: up to 20 ms later in real logs (issue 9): ``local_position_lag_s = 0.02``.
 - GPS_RAW_INT.time_usec is ``last_fix_time_ms * 1000``: the boot time of the receiver's latest
   fix in whole milliseconds (libraries/AP_GPS/AP_GPS.cpp send_mavlink_gps_raw), not the send time;
   the receiver runs at 5 Hz (``gps_fix_rate_hz = 5``), the message at the stream's rate.
@@ -52,7 +52,7 @@ MAVLINK_MODE_ONBOARD, the mode of a companion link):
   GPS_GLOBAL_ORIGIN 1 Hz, TIMESYNC 10 Hz (PX4 sends its own TIMESYNC requests on that link:
   ``own_timesync_hz = 10``), HEARTBEAT 1 Hz with MAV_AUTOPILOT_PX4.
 - Stamps are the uORB sample's timestamp (the estimator's output time), on its own grid, sent
-  with the next stream tick: a few ms later (``latency_ms = 5``, +-4 ms: an estimate, not a
+  with the next stream tick: a few ms later (``latency_s = 0.005``, +-4 ms: an estimate, not a
   documented figure). GPS_RAW_INT.time_usec is the sample's boot time in us.
 - TIMESYNC answered (tc1 = boot time in ns), SET_MESSAGE_INTERVAL honoured and ACKed.
 """
@@ -78,13 +78,13 @@ IDEAL_RATES_HZ: Mapping[str, float] = {
 PROFILES: Mapping[str, Mapping[str, Any]] = {
     "ideal": {
         "rates_hz": IDEAL_RATES_HZ,
-        "latency_ms": 2.0,
-        "latency_jitter_ms": 0.5,
+        "latency_s": 0.002,
+        "latency_jitter_s": 0.0005,
         "answer_timesync": True,
         "honour_message_interval": True,
         "firmware": "ardupilot",
-        "stamp_jitter_ms": 0.0,
-        "local_position_lag_ms": 0.0,
+        "stamp_jitter_s": 0.0,
+        "local_position_lag_s": 0.0,
         "gps_fix_rate_hz": 0.0,
         "own_timesync_hz": 0.0,
         "origin_on_change": False,
@@ -101,13 +101,13 @@ PROFILES: Mapping[str, Mapping[str, Any]] = {
             "system_time": 4.0,
             "gps_global_origin": 0.0,
         },
-        "latency_ms": 1.0,
-        "latency_jitter_ms": 0.5,
+        "latency_s": 0.001,
+        "latency_jitter_s": 0.0005,
         "answer_timesync": True,
         "honour_message_interval": True,
         "firmware": "ardupilot",
-        "stamp_jitter_ms": 2.5,
-        "local_position_lag_ms": 20.0,
+        "stamp_jitter_s": 0.0025,
+        "local_position_lag_s": 0.02,
         "gps_fix_rate_hz": 5.0,
         "own_timesync_hz": 0.1,
         "origin_on_change": True,
@@ -124,13 +124,13 @@ PROFILES: Mapping[str, Mapping[str, Any]] = {
             "system_time": 1.0,
             "gps_global_origin": 1.0,
         },
-        "latency_ms": 5.0,
-        "latency_jitter_ms": 4.0,
+        "latency_s": 0.005,
+        "latency_jitter_s": 0.004,
         "answer_timesync": True,
         "honour_message_interval": True,
         "firmware": "px4",
-        "stamp_jitter_ms": 0.0,
-        "local_position_lag_ms": 0.0,
+        "stamp_jitter_s": 0.0,
+        "local_position_lag_s": 0.0,
         "gps_fix_rate_hz": 0.0,
         "own_timesync_hz": 10.0,
         "origin_on_change": False,

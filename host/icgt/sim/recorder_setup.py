@@ -31,7 +31,7 @@ def free_udp_port() -> int:
 
 def feedback_min_lag_s(cam: Camera) -> float:
     """The shortest shutter lag a crew would configure for this body: its lag less twice its jitter and 5 ms."""
-    return max(0.0, (cam.shutter_latency_us - 2 * cam.shutter_jitter_us - 5_000) / 1e6)
+    return max(0.0, cam.shutter_latency_s - 2 * cam.shutter_jitter_s - 0.005)
 
 
 def recorder_config_text(
@@ -65,9 +65,9 @@ global_position_hz = 50.0
 
 [capture]
 mode = "{cap.mode}"
-interval_s = {(cap.interval_ms if cap.mode == "interval" else 1000.0 / cap.burst_fps) / 1000.0}
-focus_lead_s = {cap.focus_ms / 1000.0}
-burst_s = {cap.burst_ms / 1000.0}
+interval_s = {cap.interval_s if cap.mode == "interval" else 1.0 / cap.burst_fps}
+focus_lead_s = {cap.focus_s}
+burst_s = {cap.burst_s}
 shutter_pulse_s = 0.02
 {"" if host_timeout_s is None else f"host_timeout_s = {host_timeout_s}"}
 

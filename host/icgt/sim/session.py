@@ -168,9 +168,9 @@ class SimSession:
             "--link", link_arg,
             "--device-offset-us", repr(float(self.clocks.device_offset_us)),
             "--device-drift-ppm", str(sc.clocks.device.drift_ppm),
-            "--camera-latency-us", str(cam.shutter_latency_us),
-            "--camera-jitter-us", str(cam.shutter_jitter_us),
-            "--camera-exposure-us", str(cam.exposure_us),
+            "--camera-latency-us", str(round(cam.shutter_latency_s * 1e6)),
+            "--camera-jitter-us", str(round(cam.shutter_jitter_s * 1e6)),
+            "--camera-exposure-us", str(round(cam.exposure_s * 1e6)),
             "--lidar-model", sc.sensors.lidar_model,
             "--range-noise-cm", str(sc.sensors.range_noise_cm),
             "--seed", str(sc.seed),
@@ -179,14 +179,14 @@ class SimSession:
         ]  # fmt: skip
         if sc.sensors.pps:
             cmd.append("--pps")
-        if sc.link.usb_latency_us:
-            cmd += ["--usb-frame-us", str(sc.link.usb_latency_us)]
-        if sc.link.usb_jitter_us:
-            cmd += ["--usb-jitter-us", str(sc.link.usb_jitter_us)]
+        if sc.link.usb_latency_s:
+            cmd += ["--usb-frame-us", str(round(sc.link.usb_latency_s * 1e6))]
+        if sc.link.usb_jitter_s:
+            cmd += ["--usb-jitter-us", str(round(sc.link.usb_jitter_s * 1e6))]
         if cam.max_fps > 0:
             cmd += ["--camera-min-frame-us", str(round(1e6 / cam.max_fps))]
         if cam.buffer_shots:
-            cmd += ["--camera-buffer-shots", str(cam.buffer_shots), "--camera-write-us", str(round(cam.write_ms * 1e3))]
+            cmd += ["--camera-buffer-shots", str(cam.buffer_shots), "--camera-write-us", str(round(cam.write_s * 1e6))]
         if sc.faults.camera_missed_triggers:
             cmd += ["--camera-miss-triggers", ",".join(str(i) for i in sc.faults.camera_missed_triggers)]
         log = self.files.device_log.open("wb")

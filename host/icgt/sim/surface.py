@@ -34,25 +34,49 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
-from typing import Any, Literal
+from collections.abc import Mapping
+from typing import Annotated, Any, Literal, TypeAlias
 
+import msgspec
 import numpy as np
 import shapely
+from msgspec import Meta
 
 from icgt.geodesy import FloatArray
-from icgt.sim.scenario_reader import ScenarioError, TableReader
+from icgt.sim.errors import ScenarioError
 
 TEXTURES = ("concrete", "checkerboard")
+FacePoints: TypeAlias = tuple[tuple[float, float], ...]
+"""Points (s, t) on the face [m] (module docstring)."""
 
 
-@dataclass(frozen=True)
-class CrackSpec:
+class _Spec(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """One painted item of the [surface] table: an id and its points on the face."""
+
+
+def _check_points(points: FacePoints, minimum: int) -> None:
+    if len(points) < minimum:
+        raise ValueError(f"points_m: expected a list of at least {minimum} [s, t] points, got {len(points)}")
+
+
+def _check_polygon(points: FacePoints) -> None:
+    _check_points(points, 3)
+    poly = shapely.Polygon(points)
+    if not poly.is_valid or poly.area <= 0.0:
+        raise ValueError("points_m: not a simple polygon with an area (edges cross or points are collinear)")
+
+
+class CrackSpec(_Spec, frozen=True):
     """A crack: a polyline on the face [m] and its width [mm] (constant along it)."""
 
     id: str
-    points_m: tuple[tuple[float, float], ...]
-    width_mm: float
+    points_m: FacePoints
+    width_mm: Annotated[float, Meta(gt=0.0, le=200.0)]
+
+    def __post_init__(self) -> None:
+        _check_points(self.points_m, 2)
+        if self.length_m <= 0.0:
+            raise ValueError("points_m: the crack has zero length")
 
     @property
     def length_m(self) -> float:
@@ -60,114 +84,103 @@ class CrackSpec:
         return float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1)))
 
 
-@dataclass(frozen=True)
-class SpallSpec:
+class SpallSpec(_Spec, frozen=True):
     """A spalled area: a simple polygon on the face [m]."""
 
     id: str
-    points_m: tuple[tuple[float, float], ...]
+    points_m: FacePoints
+
+    def __post_init__(self) -> None:
+        _check_polygon(self.points_m)
 
     @property
     def area_m2(self) -> float:
         return float(shapely.Polygon(self.points_m).area)
 
 
-@dataclass(frozen=True)
-class StainSpec:
+class StainSpec(_Spec, frozen=True):
     """A look-alike: a soft-edged dark patch (a water streak, a shadow) on the face [m]; no defect."""
 
     id: str
-    points_m: tuple[tuple[float, float], ...]
-    darkening: float = 0.18
+    points_m: FacePoints
+    darkening: Annotated[float, Meta(ge=0.0, le=0.9)] = 0.18
+
+    def __post_init__(self) -> None:
+        _check_polygon(self.points_m)
 
 
-@dataclass(frozen=True)
-class JointSpec:
+class JointSpec(_Spec, frozen=True):
     """A look-alike: a formwork joint, a straight dark line on the face [m], width [mm]; no defect."""
 
     id: str
-    points_m: tuple[tuple[float, float], ...]
-    width_mm: float = 8.0
+    points_m: FacePoints
+    width_mm: Annotated[float, Meta(gt=0.0, le=200.0)] = 8.0
+
+    def __post_init__(self) -> None:
+        _check_points(self.points_m, 2)
 
 
-@dataclass(frozen=True)
-class Surface:
+class Surface(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     texture: Literal["concrete", "checkerboard"] = "concrete"
-    checker_mm: float = 100.0
-    render_width_px: int = 600
+    checker_mm: Annotated[float, Meta(gt=0.0)] = 100.0
+    render_width_px: Annotated[int, Meta(ge=64, le=8000)] = 600
     cracks: tuple[CrackSpec, ...] = ()
     spalls: tuple[SpallSpec, ...] = ()
     stains: tuple[StainSpec, ...] = ()
     joints: tuple[JointSpec, ...] = ()
 
-
-def _points(r: TableReader, key: str, raw: Any, minimum: int) -> tuple[tuple[float, float], ...]:
-    if not isinstance(raw, list) or len(raw) < minimum:
-        r.fail(key, f"expected a list of at least {minimum} [s, t] points, got {raw!r}")
-    out: list[tuple[float, float]] = []
-    for i, p in enumerate(raw):
-        if not isinstance(p, list) or len(p) != 2:
-            r.fail(f"{key}[{i}]", f"expected [s, t], got {p!r}")
-        s = r._check_number(f"{key}[{i}]", p[0], None, None, False)
-        t = r._check_number(f"{key}[{i}]", p[1], None, None, False)
-        out.append((s, t))
-    return tuple(out)
+    def __post_init__(self) -> None:
+        problem = surface_problem(self)
+        if problem is not None:
+            raise ValueError(problem)
 
 
-def _items(r: TableReader, key: str) -> list[TableReader]:
-    raw = r._get(key, [])
-    if not isinstance(raw, list) or not all(isinstance(x, dict) for x in raw):
-        r.fail(key, f"expected an array of tables ([[surface.{key}]])")
-    return [TableReader(x, r.source, f"{r.prefix}{key}[{i}].") for i, x in enumerate(raw)]
+DEFAULT_ID_PREFIX = {"cracks": "C", "spalls": "S", "stains": "ST", "joints": "J"}
+"""An item without an ``id`` is called prefix + its place in its list (C1, C2, ...)."""
 
 
-def parse_surface(r: TableReader) -> Surface:
-    """The [surface] table (module docstring); errors name the file and the key."""
-    texture = r.string("texture", "concrete", choices=TEXTURES)
-    checker = r.number("checker_mm", 100.0, positive=True)
-    width = r.integer("render_width_px", 600, min_value=64, max_value=8000)
-    cracks: list[CrackSpec] = []
-    ids: set[str] = set()
-    for k, c in enumerate(_items(r, "cracks"), 1):
-        cid = c.string("id", f"C{k}")
-        pts = _points(c, "points_m", c._get("points_m", None), 2)
-        cracks.append(CrackSpec(cid, pts, c.number("width_mm", positive=True, max_value=200.0)))
-        if cracks[-1].length_m <= 0.0:
-            c.fail("points_m", "the crack has zero length")
-        c.finish()
-        if cid in ids:
-            c.fail("id", f"{cid!r} is used twice")
-        ids.add(cid)
-    spalls: list[SpallSpec] = []
-    for k, s in enumerate(_items(r, "spalls"), 1):
-        sid = s.string("id", f"S{k}")
-        pts = _points(s, "points_m", s._get("points_m", None), 3)
-        poly = shapely.Polygon(pts)
-        if not poly.is_valid or poly.area <= 0.0:
-            s.fail("points_m", "not a simple polygon with an area (edges cross or points are collinear)")
-        s.finish()
-        if sid in ids:
-            s.fail("id", f"{sid!r} is used twice")
-        ids.add(sid)
-        spalls.append(SpallSpec(sid, pts))
-    stains: list[StainSpec] = []
-    for k, s in enumerate(_items(r, "stains"), 1):
-        sid = s.string("id", f"ST{k}")
-        pts = _points(s, "points_m", s._get("points_m", None), 3)
-        poly = shapely.Polygon(pts)
-        if not poly.is_valid or poly.area <= 0.0:
-            s.fail("points_m", "not a simple polygon with an area")
-        stains.append(StainSpec(sid, pts, s.number("darkening", 0.18, min_value=0.0, max_value=0.9)))
-        s.finish()
-    joints: list[JointSpec] = []
-    for k, j in enumerate(_items(r, "joints"), 1):
-        jid = j.string("id", f"J{k}")
-        pts = _points(j, "points_m", j._get("points_m", None), 2)
-        joints.append(JointSpec(jid, pts, j.number("width_mm", 8.0, positive=True, max_value=200.0)))
-        j.finish()
-    r.finish()
-    tex: Any = texture
-    return Surface(tex, checker, width, tuple(cracks), tuple(spalls), tuple(stains), tuple(joints))
+def with_default_ids(raw: Any) -> Any:
+    """The parsed [surface] table with every item's missing ``id`` filled in (anything else passed on as it is)."""
+    if not isinstance(raw, Mapping):
+        return raw
+    out = dict(raw)
+    for key, prefix in DEFAULT_ID_PREFIX.items():
+        items = out.get(key)
+        if isinstance(items, list):
+            out[key] = [
+                {"id": f"{prefix}{k}", **item} if isinstance(item, Mapping) else item for k, item in enumerate(items, 1)
+            ]
+    return out
+
+
+def surface_problem(surface: Surface) -> str | None:
+    """Why the surface's truth would be ambiguous (an id used twice, defects or look-alikes within 50 mm); None."""
+    seen: set[str] = set()
+    for key in ("cracks", "spalls"):
+        for i, item in enumerate(getattr(surface, key)):
+            if item.id in seen:
+                return f"{key}[{i}].id: {item.id!r} is used twice"
+            seen.add(item.id)
+    shapes: list[tuple[str, Any]] = [(c.id, shapely.LineString(c.points_m)) for c in surface.cracks]
+    shapes += [(s.id, shapely.Polygon(s.points_m)) for s in surface.spalls]
+    for i, (a, ga) in enumerate(shapes):
+        for b, gb in shapes[i + 1 :]:
+            if ga.distance(gb) < 0.05:
+                return f"defects {a} and {b} are closer than 50 mm"
+    looks: list[tuple[str, Any]] = [(s.id, shapely.Polygon(s.points_m)) for s in surface.stains]
+    looks += [(j.id, shapely.LineString(j.points_m)) for j in surface.joints]
+    for a, ga in looks:
+        for b, gb in shapes:
+            if ga.distance(gb) < 0.05:
+                return f"look-alike {a} is closer than 50 mm to defect {b}"
+    return None
+
+
+def check_surface(surface: Surface, source: str) -> None:
+    """Refuse a surface whose truth would be ambiguous (`surface_problem`), naming `source`."""
+    problem = surface_problem(surface)
+    if problem is not None:
+        raise ScenarioError(f"{source}: surface: {problem}")
 
 
 # --- texture --------------------------------------------------------------------------------
@@ -248,19 +261,3 @@ def shade(surface: Surface, st: FloatArray, gsd_m: float, seed: int = 0) -> Floa
             grey[idx] = grey[idx] * (1.0 - 0.8 * dark)
     out: FloatArray = np.where(ok, np.clip(grey, 0.0, 255.0), 40.0)
     return out
-
-
-def check_surface(surface: Surface, source: str) -> None:
-    """Refuse defects that overlap each other (their truth would be ambiguous)."""
-    shapes: list[tuple[str, Any]] = [(c.id, shapely.LineString(c.points_m)) for c in surface.cracks]
-    shapes += [(s.id, shapely.Polygon(s.points_m)) for s in surface.spalls]
-    for i, (a, ga) in enumerate(shapes):
-        for b, gb in shapes[i + 1 :]:
-            if ga.distance(gb) < 0.05:
-                raise ScenarioError(f"{source}: surface: defects {a} and {b} are closer than 50 mm")
-    looks: list[tuple[str, Any]] = [(s.id, shapely.Polygon(s.points_m)) for s in surface.stains]
-    looks += [(j.id, shapely.LineString(j.points_m)) for j in surface.joints]
-    for a, ga in looks:
-        for b, gb in shapes:
-            if ga.distance(gb) < 0.05:
-                raise ScenarioError(f"{source}: surface: look-alike {a} is closer than 50 mm to defect {b}")

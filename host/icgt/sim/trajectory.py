@@ -102,7 +102,7 @@ def pier_scan_plan(scenario: Scenario) -> PierScanPlan:
     step = w * (1.0 - spec.side_overlap)
     n = 1 if spec.width_m <= w else math.ceil((spec.width_m - w) / step - 1e-9) + 1
     offsets = tuple((n - 1) / 2.0 * step - k * step for k in range(n))
-    fps = cam.capture.burst_fps if cam.capture.mode == "focus_burst" else 1000.0 / cam.capture.interval_ms
+    fps = cam.capture.burst_fps if cam.capture.mode == "focus_burst" else 1.0 / cam.capture.interval_s
     along = 1.0 - spec.speed_m_s / (fps * h)
     return PierScanPlan(w, h, step, offsets, along)
 

@@ -70,9 +70,9 @@ class ClockMaps:
         return cls(
             t0_monotonic_ns=t0_monotonic_ns,
             utc0_us=utc0_us,
-            device_offset_us=c.device.offset_us,
+            device_offset_us=round(c.device.offset_s * 1e6),
             device_drift_ppm=c.device.drift_ppm,
-            autopilot_offset_us=c.autopilot.offset_us,
+            autopilot_offset_us=round(c.autopilot.offset_s * 1e6),
             autopilot_drift_ppm=c.autopilot.drift_ppm,
             camera_offset_s=c.camera.offset_s,
             camera_drift_ppm=c.camera.drift_ppm,

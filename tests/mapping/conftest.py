@@ -7,9 +7,10 @@ start meanwhile), five cracks and two spalls rendered on the card.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
+import msgspec
 import pytest
 
 from icgt.demo import Flight, fly
@@ -32,13 +33,13 @@ JOINTS = (JointSpec("J1", ((-2.4, 4.05), (2.4, 4.05)), 8.0),)  # a horizontal fo
 def with_lookalikes(sc: Scenario, *, defects: bool = True, render_width_px: int | None = None) -> Scenario:
     """The damage scenario with stains and a joint on its face; without its defects if not `defects`."""
     assert sc.surface is not None
-    surf = replace(sc.surface, stains=STAINS, joints=JOINTS)
+    surf = msgspec.structs.replace(sc.surface, stains=STAINS, joints=JOINTS)
     if not defects:
-        surf = replace(surf, cracks=(), spalls=())
+        surf = msgspec.structs.replace(surf, cracks=(), spalls=())
     if render_width_px is not None:
-        surf = replace(surf, render_width_px=render_width_px)
+        surf = msgspec.structs.replace(surf, render_width_px=render_width_px)
     check_surface(surf, sc.source)
-    return replace(sc, surface=surf)
+    return msgspec.structs.replace(sc, surface=surf)
 
 
 @dataclass

@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import json
 import shutil
-from dataclasses import replace
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import png
 import pytest
@@ -42,7 +42,9 @@ BLOCK = 40
 
 def _checker_card(df: DamageFlight, dst: Path) -> None:
     assert df.scenario.surface is not None
-    sc = replace(df.scenario, surface=replace(df.scenario.surface, texture="checkerboard", checker_mm=CHECKER_MM))
+    sc = msgspec.structs.replace(
+        df.scenario, surface=msgspec.structs.replace(df.scenario.surface, texture="checkerboard", checker_mm=CHECKER_MM)
+    )
     by_number = {e.frame_number: e for e in df.exposures}
     dst.mkdir()
     for src in sorted(df.flight.card.glob("*.JPG")):

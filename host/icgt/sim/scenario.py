@@ -69,7 +69,7 @@ from icgt.sim.scenario_sections import (
     Vec3,
     Window,
 )
-from icgt.sim.surface import Surface, with_default_ids
+from icgt.sim.surface import Surface, check_surface, with_default_ids
 
 __all__ = [
     "DEFAULT_RATES_HZ",
@@ -235,10 +235,13 @@ def parse_scenario(data: Mapping[str, Any], source: str = "<memory>") -> Scenari
         raw["surface"] = with_default_ids(raw["surface"])
     raw["source"] = source
     try:
-        return msgspec.convert(raw, Scenario)
+        scenario = msgspec.convert(raw, Scenario)
     except msgspec.ValidationError as exc:
         e = explain(exc, raw, Scenario)
         raise ScenarioError(f"{source}: {e.key}: {e.why}" if e.key else f"{source}: {e.why}") from None
+    if scenario.surface is not None:
+        check_surface(scenario.surface, source)
+    return scenario
 
 
 def load_scenario(path: str | Path) -> Scenario:

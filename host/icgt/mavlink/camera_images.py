@@ -34,6 +34,7 @@ __all__ = [
     "ImageHistory",
     "encode_image_captured",
     "image_range",
+    "truncate_utf8",
 ]
 
 
@@ -74,7 +75,8 @@ def _scaled(value: float | None, scale: float, limit: int, what: str) -> int:
     return out
 
 
-def _truncate_utf8(text: str, size: int) -> bytes:
+def truncate_utf8(text: str, size: int) -> bytes:
+    """`text` as UTF-8 in at most `size` bytes, cut at a character boundary (MAVLink char[] fields)."""
     return text.encode("utf-8")[:size].decode("utf-8", errors="ignore").encode("utf-8")
 
 
@@ -105,7 +107,7 @@ def encode_image_captured(mav: Any, image: CapturedImage) -> Any:
         q,
         image.image_index,
         1 if image.capture_result else 0,
-        _truncate_utf8(image.file_url, 205),
+        truncate_utf8(image.file_url, 205),
     )
 
 

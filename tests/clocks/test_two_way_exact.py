@@ -9,7 +9,8 @@ import random
 import numpy as np
 import pytest
 
-from icgt.clocks.two_way import _concave_argmax, _level_crossing, _TwoWayLine
+from icgt.clocks.hull_geometry import concave_argmax, level_crossing
+from icgt.clocks.two_way import _TwoWayLine
 
 
 def _random_concave(
@@ -31,7 +32,7 @@ def test_concave_argmax_matches_a_dense_grid(seed: int) -> None:
         return min(a * s + b for a, b in lines)
 
     lo, hi = sorted((rng.uniform(-4, 4), rng.uniform(-4, 4)))
-    best = _concave_argmax(f, knots, lo, hi)
+    best = concave_argmax(f, knots, lo, hi)
     assert lo <= best <= hi
     grid = np.linspace(lo, hi, 20001)
     assert f(best) >= max(f(float(s)) for s in grid) - 1e-9
@@ -45,12 +46,12 @@ def test_level_crossing_is_the_edge_of_the_interval(seed: int) -> None:
     def f(s: float) -> float:
         return min(a * s + b for a, b in lines)
 
-    inside = _concave_argmax(f, knots, -10.0, 10.0)
+    inside = concave_argmax(f, knots, -10.0, 10.0)
     level = f(inside) - rng.uniform(0.1, 5.0)
     for outside in (-10.0, 10.0):
         if f(outside) >= level:
             continue
-        edge = _level_crossing(f, knots, inside, outside, level)
+        edge = level_crossing(f, knots, inside, outside, level)
         assert f(edge) >= level  # still inside
         assert f(edge) == pytest.approx(level, abs=1e-9)  # and at the edge, not short of it
         beyond = edge + (1e-6 if outside > inside else -1e-6)

@@ -27,7 +27,7 @@ envelope, so they are harmless (those above ``rtt_limit_ns`` are not even stored
 
 The slope is not taken from the two or three extreme points that hold the widest separating
 band (one unlucky point near the end of the window would tilt it) but from the envelope points
-of equal time buckets, each side weighted by how sharp its floor is (``_bucket_slope``), always
+of equal time buckets, each side weighted by how sharp its floor is (``bucket_slope``), always
 clipped to the slopes that violate no exchange.
 
 Frame-synchronous links. A USB host polls the device on its frame grid (1 ms full speed,
@@ -58,13 +58,19 @@ frequency changed too much), the oldest samples are dropped until it can.
 from __future__ import annotations
 
 import math
-from bisect import bisect_right
 from collections import deque
-from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from enum import Enum
-from itertools import pairwise
 
+from icgt.clocks.hull_geometry import (
+    Hull,
+    bucket_slope,
+    concave_argmax,
+    level_crossing,
+    lower_hull,
+    support_slope,
+    upper_hull,
+)
 from icgt.errors import IcgtError
 
 __all__ = [
@@ -152,19 +158,6 @@ class _Sample:
 
 
 @dataclass(frozen=True, slots=True)
-class _Hull:
-    """A convex hull's vertices (x, u) sorted by x, their x, and the slopes of the edges between them."""
-
-    points: tuple[tuple[float, float], ...]
-    xs: tuple[float, ...]
-    slopes: tuple[float, ...]
-
-    @classmethod
-    def of(cls, points: tuple[tuple[float, float], ...]) -> _Hull:
-        return cls(points, tuple(p[0] for p in points), tuple(_edge_slopes(points)))
-
-
-@dataclass(frozen=True, slots=True)
 class _Fit:
     ref_x: float  # remote clock [us] of the reference (newest sample's receive stamp)
     ref_host_ns: int  # host stamp the relative coordinates are measured from
@@ -174,168 +167,13 @@ class _Fit:
     s_hi: float
     b_lo: float  # slopes the uncertainty bound considers (feasible and statistically plausible)
     b_hi: float
-    hull_a: _Hull  # upper hull of request points (x, u): lines pass above
-    hull_b: _Hull  # lower hull of reply points: lines pass below
+    hull_a: Hull  # upper hull of request points (x, u): lines pass above
+    hull_b: Hull  # lower hull of reply points: lines pass below
     x_min: float
     x_max: float
     n: int
     min_rtt_ns: int
     t_host_ns: int
-
-
-def _cross(o: tuple[float, float], a: tuple[float, float], b: tuple[float, float]) -> float:
-    return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
-
-
-def _upper_hull(points: Sequence[tuple[float, float]]) -> tuple[tuple[float, float], ...]:
-    """Upper convex hull (monotone chain) of points sorted by x."""
-    hull: list[tuple[float, float]] = []
-    for p in sorted(points):
-        while len(hull) >= 2 and _cross(hull[-2], hull[-1], p) >= 0.0:
-            hull.pop()
-        hull.append(p)
-    return tuple(hull)
-
-
-def _lower_hull(points: Sequence[tuple[float, float]]) -> tuple[tuple[float, float], ...]:
-    hull: list[tuple[float, float]] = []
-    for p in sorted(points):
-        while len(hull) >= 2 and _cross(hull[-2], hull[-1], p) <= 0.0:
-            hull.pop()
-        hull.append(p)
-    return tuple(hull)
-
-
-def _bucket_slope(
-    pts_a: Sequence[tuple[float, float]],
-    pts_b: Sequence[tuple[float, float]],
-    a0: float,
-    s0: float,
-) -> tuple[float, float]:
-    """Drift from the envelope points of each side in equal time buckets, weighted by how sharp each side is.
-
-    The max-margin slope rests on two or three extreme points, so one unlucky point near the end of
-    the window tilts it. Here each side (requests below the line, replies above) contributes the
-    point closest to the line in each of several equal time buckets; a common slope with one
-    intercept per side is fitted by least squares, each side weighted by the inverse variance of
-    its own bucket minima (a path with a sharp floor, e.g. a request that goes out at once, then
-    dominates one whose floor is blurred by the frame wait and the scheduler).
-    Returns the slope and its standard error (inf when there are too few buckets).
-    """
-    xs_all = [p[0] for p in pts_a] + [p[0] for p in pts_b]
-    x_lo, x_hi = min(xs_all), max(xs_all)
-    n_buckets = max(4, min(12, len(pts_a) // 8))
-    width = (x_hi - x_lo) / n_buckets
-    if width <= 0.0:
-        return s0, math.inf
-    sides: list[list[tuple[float, float]]] = []
-    for pts, sign in ((pts_a, 1.0), (pts_b, -1.0)):
-        best: dict[int, tuple[float, float, float]] = {}
-        count: dict[int, int] = {}
-        for x, u in pts:
-            b = min(n_buckets - 1, int((x - x_lo) / width))
-            clearance = sign * (a0 + s0 * x - u)
-            count[b] = count.get(b, 0) + 1
-            if b not in best or clearance < best[b][0]:
-                best[b] = (clearance, x, u)
-        # A bucket of one or two exchanges (a burst of rejected ones) says little about the floor.
-        sides.append([(x, u) for b, (_, x, u) in best.items() if count[b] >= 3])
-    num = 0.0
-    den = 0.0
-    for side in sides:
-        if len(side) < 4:
-            return s0, math.inf
-        mx = sum(x for x, _ in side) / len(side)
-        mu = sum(u for _, u in side) / len(side)
-        sxx = sum((x - mx) ** 2 for x, _ in side)
-        sxy = sum((x - mx) * (u - mu) for x, u in side)
-        if sxx <= 0.0:
-            return s0, math.inf
-        slope = sxy / sxx
-        resid = sum((u - mu - slope * (x - mx)) ** 2 for x, u in side) / max(1, len(side) - 2)
-        w = 1.0 / max(resid, 1e6)  # floor: (1 us)^2
-        num += w * sxy
-        den += w * sxx
-    return num / den, math.sqrt(1.0 / den)
-
-
-def _edge_slopes(hull: Sequence[tuple[float, float]]) -> list[float]:
-    """Slopes of the edges of a hull given as vertices sorted by x (a vertical edge: +-inf)."""
-    return [
-        (u1 - u0) / (x1 - x0) if x1 > x0 else math.copysign(math.inf, u1 - u0) for (x0, u0), (x1, u1) in pairwise(hull)
-    ]
-
-
-def _concave_argmax(f: Callable[[float], float], knots: Sequence[float], lo: float, hi: float) -> float:
-    """Exact argmax on [lo, hi] of a concave function that is linear between sorted ``knots``.
-
-    The maximum of such a function is at a knot or an end of the interval, and along the sorted
-    candidates the values rise, then fall: a binary search on the sign of the step finds it with
-    O(log n) evaluations (a golden-section search needs ~80 for double precision). Where the top is
-    flat (a plateau: the supporting points of both sides share one x, as with TIMESYNC's single
-    remote stamp), the middle of the plateau is returned, so the choice does not lean to one end.
-    """
-    if hi <= lo:
-        return lo
-    cand = [lo, *(k for k in knots if lo < k < hi), hi]
-    vals: dict[int, float] = {}
-
-    def val(i: int) -> float:
-        v = vals.get(i)
-        if v is None:
-            v = vals[i] = f(cand[i])
-        return v
-
-    a, b = 0, len(cand) - 1  # first index whose next step does not rise, in [a, b]
-    while a < b:
-        m = (a + b) // 2
-        if val(m + 1) > val(m):
-            a = m + 1
-        else:
-            b = m
-    top = val(a)
-    last = a  # a plateau: equal values to the right of the first maximiser
-    while last + 1 < len(cand) and val(last + 1) >= top:
-        last += 1
-    return cand[a] if last == a else 0.5 * (cand[a] + cand[last])
-
-
-def _level_crossing(
-    f: Callable[[float], float], knots: Sequence[float], inside: float, outside: float, level: float
-) -> float:
-    """The point between ``inside`` (f >= level) and ``outside`` (f < level) where the piecewise-linear
-    concave ``f`` (linear between ``knots``) falls to ``level``: exact, by a binary search over the
-    knots in between and one linear interpolation (a bisection needs ~70 evaluations)."""
-    lo, hi = min(inside, outside), max(inside, outside)
-    pts = [inside, *sorted((k for k in knots if lo < k < hi), reverse=outside < inside), outside]
-    a, b = 0, len(pts) - 1  # f(pts[a]) >= level > f(pts[b])
-    fa, fb = f(pts[a]), f(pts[b])
-    while b - a > 1:
-        m = (a + b) // 2
-        fm = f(pts[m])
-        if fm >= level:
-            a, fa = m, fm
-        else:
-            b, fb = m, fm
-    if fa == fb:
-        return pts[a]
-    t = (fa - level) / (fa - fb)
-    step = t * (pts[b] - pts[a])
-    for shrink in (1.0, 1.0 - 2.0**-40, 1.0 - 2.0**-30, 1.0 - 2.0**-20, 1.0 - 2.0**-10):
-        x = pts[a] + shrink * step
-        if f(x) >= level:  # rounding may put the interpolated point a hair past the edge: step back
-            return x
-    return pts[a]
-
-
-def _support_slope(hull: _Hull, x: float, before: float, after: float) -> float:
-    """Slope of the hull edge over ``x`` (``before``/``after`` left of the first or right of the last vertex)."""
-    i = bisect_right(hull.xs, x)
-    if i == 0:
-        return before
-    if i >= len(hull.xs):
-        return after
-    return hull.slopes[i - 1]
 
 
 _REFIT_LAZY_AFTER = 64  # exchanges in the window before refits may be spaced out (refit_interval_ns)
@@ -510,9 +348,9 @@ class _TwoWayLine:
             xb = (smp.tx - ref_x) * 1000.0
             pts_b.append((xb, float(smp.host_rx_ns - ref_h) - xb))
             min_rtt = min(min_rtt, (smp.host_rx_ns - smp.host_tx_ns) - (smp.tx - smp.rx) * 1000.0)
-        hull_a = _upper_hull(pts_a)
-        hull_b = _lower_hull(pts_b)
-        hulls = (_Hull.of(hull_a), _Hull.of(hull_b))
+        hull_a = upper_hull(pts_a)
+        hull_b = lower_hull(pts_b)
+        hulls = (Hull.of(hull_a), Hull.of(hull_b))
         # margin(s) is concave and linear between the hulls' edge slopes (where either side's supporting
         # point changes): its maximum and its level crossings are found exactly among them.
         knots = sorted(hulls[0].slopes + hulls[1].slopes)
@@ -535,18 +373,18 @@ class _TwoWayLine:
             # Short span after a reset: the drift measured before it bounds the slope (same crystal).
             lo = max(lo, self._prior_s - self._prior_unc)
             hi = min(hi, self._prior_s + self._prior_unc)
-        s_best = _concave_argmax(margin, knots, lo, hi)
+        s_best = concave_argmax(margin, knots, lo, hi)
         if margin(s_best) < -slack and (lo, hi) != (-self._s_max, self._s_max):
             lo, hi = -self._s_max, self._s_max  # the prior is wrong (temperature moved): let the data speak
-            s_best = _concave_argmax(margin, knots, lo, hi)
+            s_best = concave_argmax(margin, knots, lo, hi)
         if margin(s_best) < -slack:
             return _Fit(ref_x, ref_h, 0.0, s_best, 1.0, -1.0, 1.0, -1.0, *hulls, x_min, x_max, 0, 0, 0)
 
-        s_lo = lo if margin(lo) >= -slack else _level_crossing(margin, knots, s_best, lo, -slack)
-        s_hi = hi if margin(hi) >= -slack else _level_crossing(margin, knots, s_best, hi, -slack)
+        s_lo = lo if margin(lo) >= -slack else level_crossing(margin, knots, s_best, lo, -slack)
+        s_hi = hi if margin(hi) >= -slack else level_crossing(margin, knots, s_best, hi, -slack)
         b_lo, b_hi = s_lo, s_hi
         if span_ok:
-            s_bucket, sigma = _bucket_slope(pts_a, pts_b, 0.5 * (lower(s_best) + upper(s_best)), s_best)
+            s_bucket, sigma = bucket_slope(pts_a, pts_b, 0.5 * (lower(s_best) + upper(s_best)), s_best)
             s = min(max(s_bucket, s_lo), s_hi)
             # The bound considers the lines whose slope is within 4 standard errors of ours (and feasible):
             # every feasible slope would be a pure worst case, several times wider than the slope's real error.
@@ -602,8 +440,8 @@ class _TwoWayLine:
         # variable peaks on an interval at its unconstrained peak, clipped). Likewise the lowest line above
         # every request point, with the upper hull's edge (whose slopes fall with x). Exact, and O(hull).
         inf = math.inf
-        s_top = min(max(_support_slope(fit.hull_b, x, -inf, inf), fit.b_lo), fit.b_hi)
-        s_bot = min(max(_support_slope(fit.hull_a, x, inf, -inf), fit.b_lo), fit.b_hi)
+        s_top = min(max(support_slope(fit.hull_b, x, -inf, inf), fit.b_lo), fit.b_hi)
+        s_bot = min(max(support_slope(fit.hull_a, x, inf, -inf), fit.b_lo), fit.b_hi)
         top = min(u + s_top * (x - xb) for xb, u in fit.hull_b.points)  # highest consistent line of slope s_top, at x
         bottom = max(u + s_bot * (x - xa) for xa, u in fit.hull_a.points)
         spread = max(top - est, est - bottom, 0.0)

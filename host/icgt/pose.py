@@ -165,7 +165,9 @@ def optical_axis_enu(cam_q: Any) -> FloatArray:
 def euler_deg(body_q: Any) -> tuple[float, float, float]:
     """Roll, pitch, yaw [deg] (ZYX, yaw in [0, 360)) of a body FRD -> NED quaternion."""
     r, p, y = q_to_euler_zyx(body_q)
-    return math.degrees(float(r)), math.degrees(float(p)), math.degrees(float(y)) % 360.0
+    yaw = math.degrees(float(y)) % 360.0
+    # a yaw a hair below 0 wraps to exactly 360.0 in floating point (-1e-18 % 360.0 == 360.0): that is north
+    return math.degrees(float(r)), math.degrees(float(p)), 0.0 if yaw >= 360.0 else yaw
 
 
 class MountAngles(Protocol):

